@@ -1,0 +1,183 @@
+"""The frame: a point cloud plus the products that later stages need.
+
+A stage takes a :class:`Frame` and returns a new one. The cloud is an
+``o3d.t.geometry.PointCloud`` whose positions are float64 and whose per-point attributes are
+shaped (N, 1) (so Open3D's PLY/PCD writers keep them). Products are the non-per-point results:
+the height grid, the fitted surface, slope and cost maps, obstacles.
+
+Stages never modify the caller's cloud: :func:`as_frame` makes a shallow copy (new tensor map,
+shared tensors) and attributes are always *added* to a fresh copy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import numpy as np
+import open3d as o3d
+
+from .errors import InputError
+
+#: per-point attribute names written by the stages (Open3D style: plural snake_case)
+LABELS = "labels"
+HEIGHTS_ABOVE_TERRAIN = "heights_above_terrain"
+SLOPES_DEG = "slopes_deg"
+
+
+def _tensor(array: np.ndarray) -> o3d.core.Tensor:
+    return o3d.core.Tensor(np.ascontiguousarray(array))
+
+
+def _readonly(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.flags.writeable = False
+    return view
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A point cloud with its products. Immutable: the ``with_*`` methods return new frames."""
+
+    cloud: o3d.t.geometry.PointCloud
+    products: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    notes: tuple[str, ...] = ()
+
+    # -- reading -------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return int(self.cloud.point.positions.shape[0])
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N, 3) float64 positions, read-only."""
+        return _readonly(self.cloud.point.positions.numpy())
+
+    def has_attribute(self, name: str) -> bool:
+        return name in self.cloud.point
+
+    def attribute(self, name: str) -> np.ndarray:
+        """A per-point attribute as a read-only array: (N,) for one column, (N, k) otherwise."""
+        if name not in self.cloud.point:
+            have = ", ".join(sorted(k for k in self.cloud.point if k != "positions")) or "none"
+            raise KeyError(f"the cloud has no attribute '{name}' (attributes: {have})")
+        values = self.cloud.point[name].numpy()
+        if values.ndim == 2 and values.shape[1] == 1:
+            values = values[:, 0]
+        return _readonly(values)
+
+    def attribute_names(self) -> list[str]:
+        return sorted(k for k in self.cloud.point if k != "positions")
+
+    def product(self, name: str) -> Any:
+        if name not in self.products:
+            have = ", ".join(sorted(self.products)) or "none"
+            raise KeyError(f"the frame has no product '{name}' (products: {have})")
+        return self.products[name]
+
+    # -- deriving new frames -------------------------------------------------------------------
+    def with_attributes(self, **arrays: np.ndarray) -> "Frame":
+        """A new frame whose cloud has these per-point attributes added or replaced."""
+        n = len(self)
+        cloud = _shallow_copy(self.cloud)
+        for name, values in arrays.items():
+            values = np.asarray(values)
+            if values.ndim == 1:
+                values = values[:, None]
+            if values.ndim != 2 or values.shape[0] != n:
+                raise ValueError(
+                    f"attribute '{name}' has shape {values.shape}; it must have {n} rows"
+                )
+            cloud.point[name] = _tensor(values)
+        return Frame(cloud, self.products, self.notes)
+
+    def with_products(self, **products: Any) -> "Frame":
+        merged = dict(self.products)
+        merged.update(products)
+        return Frame(self.cloud, MappingProxyType(merged), self.notes)
+
+    def with_note(self, note: str) -> "Frame":
+        return Frame(self.cloud, self.products, self.notes + (note,))
+
+    def select(self, mask_or_indices: np.ndarray) -> "Frame":
+        """A frame with a subset of the points and the same products."""
+        index = np.asarray(mask_or_indices)
+        if index.dtype == bool:
+            index = np.flatnonzero(index)
+        cloud = o3d.t.geometry.PointCloud(
+            {k: _tensor(self.cloud.point[k].numpy()[index]) for k in self.cloud.point}
+        )
+        return Frame(cloud, self.products, self.notes)
+
+
+def _shallow_copy(cloud: o3d.t.geometry.PointCloud) -> o3d.t.geometry.PointCloud:
+    return o3d.t.geometry.PointCloud({k: cloud.point[k] for k in cloud.point})
+
+
+def cloud_from_numpy(positions: np.ndarray, **attributes: np.ndarray) -> o3d.t.geometry.PointCloud:
+    """A tensor cloud from float64 positions and (N,) or (N, k) attributes."""
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    cloud = o3d.t.geometry.PointCloud({"positions": _tensor(positions)})
+    for name, values in attributes.items():
+        values = np.asarray(values)
+        if values.ndim == 1:
+            values = values[:, None]
+        if values.shape[0] != positions.shape[0]:
+            raise ValueError(f"attribute '{name}' has {values.shape[0]} rows, positions {len(positions)}")
+        cloud.point[name] = _tensor(values)
+    return cloud
+
+
+def as_frame(data: Any) -> Frame:
+    """Accept a Frame, an Open3D legacy or tensor PointCloud, or an (N, 3)/(N, 4) array.
+
+    The caller's object is never modified. Positions become float64. A fourth array column
+    becomes the ``intensities`` attribute. Non-finite points are kept (so indices stay aligned
+    with the caller's cloud); stages skip them and say how many they skipped.
+    """
+    if isinstance(data, Frame):
+        return data
+    if isinstance(data, o3d.t.geometry.PointCloud):
+        if "positions" not in data.point:
+            return Frame(cloud_from_numpy(np.zeros((0, 3))))
+        cloud = _shallow_copy(data)
+        positions = cloud.point.positions
+        if positions.device.get_type() != o3d.core.Device.DeviceType.CPU:
+            cloud = cloud.cpu()
+        if cloud.point.positions.dtype != o3d.core.float64:
+            cloud.point.positions = cloud.point.positions.to(o3d.core.float64)
+        for name in list(cloud.point):
+            values = cloud.point[name]
+            if len(values.shape) == 1:  # Open3D accepts (N,) but cannot write it: make (N, 1)
+                cloud.point[name] = values.reshape((values.shape[0], 1))
+        return Frame(cloud)
+    if isinstance(data, o3d.geometry.PointCloud):
+        attributes = {}
+        if data.has_colors():
+            attributes["colors"] = np.asarray(data.colors)
+        if data.has_normals():
+            attributes["normals"] = np.asarray(data.normals)
+        return Frame(cloud_from_numpy(np.asarray(data.points), **attributes))
+    if isinstance(data, np.ndarray) or isinstance(data, (list, tuple)):
+        array = np.asarray(data)
+        if array.dtype == object or not np.issubdtype(array.dtype, np.number):
+            raise InputError(f"expected a numeric (N, 3) or (N, 4) array, got dtype {array.dtype}")
+        if array.ndim != 2 or array.shape[1] not in (3, 4):
+            if array.size == 0:
+                return Frame(cloud_from_numpy(np.zeros((0, 3))))
+            raise InputError(
+                f"expected an (N, 3) or (N, 4) array of x, y, z[, intensity], got shape {array.shape}"
+            )
+        attributes = {}
+        if array.shape[1] == 4:
+            attributes["intensities"] = array[:, 3].astype(np.float32)
+        return Frame(cloud_from_numpy(array[:, :3].astype(np.float64), **attributes))
+    raise InputError(
+        "expected an Open3D PointCloud (legacy or tensor), an (N, 3)/(N, 4) numpy array or a "
+        f"Frame, got {type(data).__name__}"
+    )
+
+
+def finite_mask(positions: np.ndarray) -> np.ndarray:
+    """True where all three coordinates are finite."""
+    return np.isfinite(positions).all(axis=1)

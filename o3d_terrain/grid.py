@@ -1,0 +1,134 @@
+"""The 2.5-D height grid (Broggi et al. 2013, Sec. IV): value object and quantization.
+
+Arrays are indexed ``[ix, iy]`` (x first, shape ``(nx, ny)``), like the spline's control points
+``Q[i0, i1]``. Cell ``(ix, iy)`` covers ``[x_min + ix*c, x_min + (ix+1)*c)`` and likewise in y.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._kernels import grid as _grid
+from .errors import InputError
+
+INVALID = _grid.INVALID
+MEASURED = _grid.MEASURED
+FILLED = _grid.FILLED
+
+#: the most cells a grid may have (a typo'd cell size should fail, not exhaust memory)
+MAX_CELLS = 50_000_000
+
+
+@dataclass(frozen=True, eq=False)
+class HeightGrid:
+    """Per-cell terrain height samples Z with counts and a measured/filled/invalid state."""
+
+    x_min: float
+    y_min: float
+    cell_size: float
+    z: np.ndarray  # (nx, ny) float64; 0 where INVALID
+    count: np.ndarray  # (nx, ny) int64 points per cell
+    state: np.ndarray  # (nx, ny) uint8: INVALID 0, MEASURED 1, FILLED 2
+    lowest: np.ndarray | None = None  # (nx, ny) lowest z per cell (inf where empty)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.z.shape)  # type: ignore[return-value]
+
+    @property
+    def nx(self) -> int:
+        return int(self.z.shape[0])
+
+    @property
+    def ny(self) -> int:
+        return int(self.z.shape[1])
+
+    @property
+    def region(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) covered by the cells."""
+        c = self.cell_size
+        return (self.x_min, self.x_min + self.nx * c, self.y_min, self.y_min + self.ny * c)
+
+    @property
+    def x_centers(self) -> np.ndarray:
+        return self.x_min + (np.arange(self.nx) + 0.5) * self.cell_size
+
+    @property
+    def y_centers(self) -> np.ndarray:
+        return self.y_min + (np.arange(self.ny) + 0.5) * self.cell_size
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.state != INVALID
+
+    def cell_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat cell index (ix * ny + iy) of each point; -1 outside the grid or non-finite."""
+        return _grid.cell_indices(
+            np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
+            self.x_min, self.y_min, self.cell_size, self.nx, self.ny,
+        )
+
+    def save(self, path: str | Path) -> None:
+        np.savez_compressed(
+            path, kind="HeightGrid", x_min=self.x_min, y_min=self.y_min,
+            cell_size=self.cell_size, z=self.z, count=self.count, state=self.state,
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> "HeightGrid":
+        with np.load(path) as data:
+            return cls(float(data["x_min"]), float(data["y_min"]), float(data["cell_size"]),
+                       data["z"], data["count"], data["state"])
+
+
+def grid_shape(region: tuple[float, float, float, float], cell_size: float) -> tuple[int, int]:
+    """Cells needed to cover a region (at least one per axis)."""
+    x_min, x_max, y_min, y_max = region
+    nx = max(1, int(np.ceil((x_max - x_min) / cell_size - 1e-9)))
+    ny = max(1, int(np.ceil((y_max - y_min) / cell_size - 1e-9)))
+    return nx, ny
+
+
+def region_of(positions: np.ndarray) -> tuple[float, float, float, float]:
+    """The x/y bounding box of the finite points."""
+    finite = np.isfinite(positions).all(axis=1)
+    if not finite.any():
+        raise InputError("the cloud has no finite point; give a cloud with at least one point")
+    p = positions[finite]
+    return (float(p[:, 0].min()), float(p[:, 0].max()), float(p[:, 1].min()), float(p[:, 1].max()))
+
+
+def quantize_points(
+    positions: np.ndarray,
+    *,
+    cell_size: float,
+    region: tuple[float, float, float, float] | None = None,
+    min_points: int = 1,
+    fill_empty: bool = True,
+) -> HeightGrid:
+    """Quantize points into a :class:`HeightGrid` (eq. 1). Non-finite points are skipped."""
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.ndim != 2 or positions.shape[1] != 3:
+        raise InputError(f"positions must be (N, 3), got {positions.shape}")
+    if len(positions) == 0:
+        raise InputError("the cloud is empty; give a cloud with points")
+    if region is None:
+        region = region_of(positions)
+    x_min, x_max, y_min, y_max = region
+    if not (x_max >= x_min and y_max >= y_min):
+        raise InputError(f"region {tuple(region)} is degenerate: x_max must be >= x_min and y_max >= y_min")
+    nx, ny = grid_shape(region, cell_size)
+    if nx * ny > MAX_CELLS:
+        raise InputError(
+            f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
+            f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
+        )
+    x = np.ascontiguousarray(positions[:, 0])
+    y = np.ascontiguousarray(positions[:, 1])
+    z = np.ascontiguousarray(positions[:, 2])
+    cells = _grid.cell_indices(x, y, x_min, y_min, cell_size, nx, ny)
+    height, count, state, lowest = _grid.quantize(cells, z, nx, ny, min_points, fill_empty)
+    return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest)
