@@ -1,0 +1,269 @@
+"""Reading and writing clouds, grids and images.
+
+Readers return an ``o3d.t.geometry.PointCloud`` with float64 positions and (N, 1) attributes:
+
+========================  =====================================================================
+extension                 what is read
+========================  =====================================================================
+``.ply``, ``.pcd``        every attribute Open3D reads (positions cast to float64)
+``.xyz``, ``.txt``,       whitespace- or comma-separated x y z [intensity]; a header line is
+``.csv``, ``.pts``        skipped
+``.npy``                  an (N, 3) or (N, 4) array (x, y, z[, intensity])
+``.bin``                  KITTI Velodyne float32 x, y, z, remission (``intensities``)
+``.las``, ``.laz``        scaled float64 x, y, z; ``classification``, ``intensities``,
+                          ``return_numbers``, ``number_of_returns``, ``colors`` when present
+                          (needs the ``las`` extra: ``pip install 'o3d_terrain[las]'``)
+========================  =====================================================================
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import open3d as o3d
+
+from .errors import InputError
+from .frame import Frame, as_frame, cloud_from_numpy
+
+CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".npy", ".bin", ".las", ".laz")
+WRITE_EXTENSIONS = (".ply", ".pcd", ".npz", ".xyz", ".txt")
+
+
+def _check_readable(path: Path) -> None:
+    if not path.exists():
+        raise InputError(f"{path}: no such file; check the path (relative paths in a pipeline "
+                         "file are resolved against the file's folder)")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a point cloud file")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"{path}: not readable (permission denied)")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: the file is empty")
+
+
+def read_cloud(path: str | os.PathLike) -> o3d.t.geometry.PointCloud:
+    """Read a point cloud file (see the module docstring for the formats)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_EXTENSIONS:
+        raise InputError(
+            f"{path}: unknown point cloud format '{suffix}'; supported: {', '.join(CLOUD_EXTENSIONS)}"
+        )
+    _check_readable(path)
+    try:
+        if suffix in (".ply", ".pcd"):
+            return _read_open3d(path)
+        if suffix in (".xyz", ".txt", ".csv", ".pts"):
+            return _from_array(_read_text(path), path)
+        if suffix == ".npy":
+            return _from_array(np.load(path, allow_pickle=False), path)
+        if suffix == ".bin":
+            return _read_kitti_bin(path)
+        return _read_las(path)
+    except InputError:
+        raise
+    except Exception as exc:  # a reader library failed on a corrupt file
+        raise InputError(f"{path}: could not be read as {suffix} ({exc})") from exc
+
+
+def _read_open3d(path: Path) -> o3d.t.geometry.PointCloud:
+    cloud = o3d.t.io.read_point_cloud(str(path))
+    if "positions" not in cloud.point or cloud.point.positions.shape[0] == 0:
+        raise InputError(f"{path}: Open3D read no points (corrupt or empty file?)")
+    return as_frame(cloud).cloud
+
+
+def _read_text(path: Path) -> np.ndarray:
+    with open(path, "r", errors="replace") as handle:
+        first = handle.readline()
+    delimiter = "," if "," in first else None
+    skip = 0
+    try:
+        [float(v) for v in first.replace(",", " ").split()]
+    except ValueError:
+        skip = 1  # a header line
+    data = np.loadtxt(path, delimiter=delimiter, skiprows=skip, ndmin=2, comments="#")
+    if data.shape[1] < 3:
+        raise InputError(f"{path}: expected at least 3 columns (x y z), found {data.shape[1]}")
+    return data[:, :4]
+
+
+def _from_array(array: np.ndarray, path: Path) -> o3d.t.geometry.PointCloud:
+    if array.ndim != 2 or array.shape[1] not in (3, 4):
+        raise InputError(f"{path}: expected an (N, 3) or (N, 4) array, got shape {array.shape}")
+    if len(array) == 0:
+        raise InputError(f"{path}: contains no points")
+    return as_frame(np.asarray(array, dtype=np.float64)).cloud
+
+
+def _read_kitti_bin(path: Path) -> o3d.t.geometry.PointCloud:
+    size = path.stat().st_size
+    if size % 16:
+        raise InputError(
+            f"{path}: {size} bytes is not a whole number of KITTI points (16 bytes: x, y, z, "
+            "remission as float32)"
+        )
+    data = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
+    return cloud_from_numpy(data[:, :3].astype(np.float64), intensities=data[:, 3])
+
+
+def _read_las(path: Path) -> o3d.t.geometry.PointCloud:
+    try:
+        import laspy
+    except ImportError as exc:
+        raise InputError(
+            f"{path}: reading LAS/LAZ needs laspy; install the extra: pip install 'o3d_terrain[las]'"
+        ) from exc
+    try:
+        las = laspy.read(str(path))
+    except laspy.errors.LaspyException as exc:
+        if "backend" in str(exc).lower() or "laz" in str(exc).lower():
+            raise InputError(
+                f"{path}: reading LAZ needs a laspy backend; install the extra: "
+                "pip install 'o3d_terrain[las]' (laspy[lazrs])"
+            ) from exc
+        raise
+    positions = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+    if len(positions) == 0:
+        raise InputError(f"{path}: contains no points")
+    attributes: dict[str, np.ndarray] = {
+        "classification": np.asarray(las.classification, dtype=np.int32),
+        "intensities": np.asarray(las.intensity, dtype=np.float32),
+        "return_numbers": np.asarray(las.return_number, dtype=np.int32),
+        "number_of_returns": np.asarray(las.number_of_returns, dtype=np.int32),
+    }
+    names = set(las.point_format.dimension_names)
+    if {"red", "green", "blue"} <= names:
+        rgb = np.column_stack([las.red, las.green, las.blue]).astype(np.float64)
+        scale = 65535.0 if rgb.max(initial=0) > 255 else 255.0
+        attributes["colors"] = (rgb / scale).astype(np.float32)
+    return cloud_from_numpy(positions, **attributes)
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+def write_cloud(path: str | os.PathLike, cloud: Any) -> Path:
+    """Write a cloud (any input :func:`as_frame` accepts) with its attributes.
+
+    ``.ply``/``.pcd`` keep every (N, 1) attribute (bool attributes are stored as uint8);
+    ``.npz`` stores positions and attributes as arrays; ``.xyz``/``.txt`` store x y z only.
+    Raises :class:`InputError` when the writer fails.
+    """
+    path = Path(path)
+    frame = as_frame(cloud)
+    suffix = path.suffix.lower()
+    if suffix not in WRITE_EXTENSIONS:
+        raise InputError(f"{path}: cannot write '{suffix}'; use one of {', '.join(WRITE_EXTENSIONS)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".npz":
+        arrays = {"positions": np.asarray(frame.positions)}
+        for name in frame.attribute_names():
+            arrays[name] = np.asarray(frame.cloud.point[name].numpy())
+        np.savez_compressed(path, **arrays)
+        return path
+    if suffix in (".xyz", ".txt"):
+        np.savetxt(path, frame.positions, fmt="%.6f")
+        return path
+    out = o3d.t.geometry.PointCloud({"positions": frame.cloud.point.positions})
+    for name in frame.attribute_names():
+        values = frame.cloud.point[name]
+        if values.dtype == o3d.core.bool:
+            values = values.to(o3d.core.uint8)
+        elif values.dtype == o3d.core.int64:
+            values = values.to(o3d.core.int32)
+        out.point[name] = values
+    if not o3d.t.io.write_point_cloud(str(path), out):
+        raise InputError(f"{path}: Open3D could not write the cloud (check the folder is writable)")
+    return path
+
+
+#: OpenCV colour maps by name, for grid images
+COLORMAPS = {
+    "turbo": cv2.COLORMAP_TURBO,
+    "viridis": cv2.COLORMAP_VIRIDIS,
+    "jet": cv2.COLORMAP_JET,
+    "inferno": cv2.COLORMAP_INFERNO,
+    "magma": cv2.COLORMAP_MAGMA,
+    "gray": None,
+}
+
+
+def render_grid_image(
+    values: np.ndarray,
+    *,
+    valid: np.ndarray | None = None,
+    colormap: str = "turbo",
+    value_range: tuple[float, float] | None = None,
+    title: str = "",
+    unit: str = "",
+    min_size: int = 480,
+) -> np.ndarray:
+    """A BGR image of a grid indexed ``[ix, iy]``, with a colour scale bar and a title.
+
+    The image shows x to the right and y up (a map seen from above). Invalid cells are dark grey.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim != 2 or values.size == 0:
+        raise InputError(f"a grid image needs a non-empty 2-D array, got shape {values.shape}")
+    valid = np.isfinite(values) if valid is None else (np.asarray(valid, bool) & np.isfinite(values))
+    if value_range is None:
+        if valid.any():
+            low, high = np.percentile(values[valid], [1, 99])
+        else:
+            low, high = 0.0, 1.0
+    else:
+        low, high = value_range
+    if not high > low:
+        high = low + 1.0
+    scaled = np.clip((values - low) / (high - low), 0, 1)
+    # [ix, iy] -> image rows from top (high y) to bottom, columns left (low x) to right
+    scaled = np.flipud(scaled.T)
+    mask = np.flipud(valid.T)
+    gray = (scaled * 255).astype(np.uint8)
+    cmap = COLORMAPS.get(colormap, cv2.COLORMAP_TURBO)
+    color = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR) if cmap is None else cv2.applyColorMap(gray, cmap)
+    color[~mask] = (60, 60, 60)
+    factor = max(1, int(np.ceil(min_size / max(color.shape[:2]))))
+    color = cv2.resize(color, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
+    h, w = color.shape[:2]
+    bar_w, margin, top = 24, 90, 30
+    canvas = np.full((h + top + 10, w + bar_w + margin, 3), 255, np.uint8)
+    canvas[top:top + h, :w] = color
+    ramp = np.linspace(255, 0, h).astype(np.uint8)[:, None].repeat(bar_w, axis=1)
+    bar = cv2.cvtColor(ramp, cv2.COLOR_GRAY2BGR) if cmap is None else cv2.applyColorMap(ramp, cmap)
+    canvas[top:top + h, w + 8:w + 8 + bar_w] = bar
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for frac, val in ((0.0, high), (0.5, (low + high) / 2), (1.0, low)):
+        y = top + int(frac * (h - 1))
+        label = f"{val:.2f}{(' ' + unit) if unit else ''}"
+        cv2.putText(canvas, label, (w + bar_w + 12, max(y + 4, top + 10)), font, 0.4, (0, 0, 0), 1,
+                    cv2.LINE_AA)
+    if title:
+        cv2.putText(canvas, title, (4, 20), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    return canvas
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Write an image (PNG, JPG); raises when OpenCV fails."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), image):
+        raise InputError(f"{path}: OpenCV could not write the image (unknown extension or folder?)")
+    return path
+
+
+def as_cloud(data: Any) -> o3d.t.geometry.PointCloud:
+    """The tensor cloud of anything :func:`as_frame` accepts, or of a file path."""
+    if isinstance(data, (str, os.PathLike)):
+        return read_cloud(data)
+    return as_frame(data).cloud
+
+
+def frame_from_file(path: str | os.PathLike) -> Frame:
+    return Frame(read_cloud(path)).with_note(f"read {path}")
