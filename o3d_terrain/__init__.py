@@ -1,1 +1,31 @@
-"""o3d_terrain."""
+"""o3d_terrain: rational B-spline terrain models for Open3D point clouds.
+
+Drop-in use in Open3D code::
+
+    import o3d_terrain
+    surface, inliers = o3d_terrain.segment_terrain(pcd)   # like pcd.segment_plane(...)
+    ground = pcd.select_by_index(inliers)
+    slope = surface.slope_deg(x, y)
+
+Stages compose into pipelines (``o3d-terrain run pipelines/lidar_terrain.yaml``) or run as
+plain calls: ``frame = GridQuantize(cell_size=0.5)(pcd)``.
+"""
+
+__version__ = "0.1.0"
+
+from .errors import ConfigError, InputError, O3DTerrainError, StageError
+from .frame import Frame, as_frame
+from .grid import HeightGrid, quantize_points
+from .io import read_cloud, write_cloud
+from .stages import STAGES, GridQuantize, ReadCloud
+from .pipeline import Pipeline, load_pipeline, parse_pipeline
+from .writers import WRITERS
+
+__all__ = [
+    "__version__",
+    "ConfigError", "InputError", "O3DTerrainError", "StageError",
+    "Frame", "as_frame", "HeightGrid", "quantize_points",
+    "read_cloud", "write_cloud",
+    "STAGES", "GridQuantize", "ReadCloud",
+    "Pipeline", "load_pipeline", "parse_pipeline", "WRITERS",
+]

@@ -2,5 +2,6 @@
 
 from .base import STAGES, SourceStage, Stage, stage
 from .grid_quantize import GridQuantize
+from .read import ReadCloud
 
-__all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize"]
+__all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize", "ReadCloud"]

@@ -1,0 +1,181 @@
+"""The ``o3d-terrain`` command. The only module that prints or exits.
+
+Exit codes: 0 success, 2 bad configuration or usage, 1 runtime failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from pathlib import Path
+from typing import Sequence
+
+from . import __version__
+from .docgen import describe_text, list_text
+from .errors import ConfigError, O3DTerrainError, Problem, did_you_mean
+from .pipeline import load_pipeline
+from .stages import STAGES
+from .writers import WRITERS
+
+EXIT_OK, EXIT_FAILURE, EXIT_CONFIG = 0, 1, 2
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="o3d-terrain",
+        description="Rational B-spline terrain models, slope and ground/obstacle segmentation "
+                    "for point clouds.",
+    )
+    parser.add_argument("--version", action="version", version=f"o3d-terrain {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="show timings and full tracebacks")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    run = sub.add_parser("run", help="run a pipeline file")
+    run.add_argument("pipeline", help="pipeline YAML file")
+    run.add_argument("--input", "-i", action="append", default=[], metavar="PATH",
+                     help="point cloud file(s) or folder(s) to run on instead of the file's "
+                          "source; repeat for a batch (each input gets its own sub-folder)")
+    run.add_argument("--output", "-o", metavar="DIR", help="output folder (default: the file's "
+                     "output_dir, else ./out)")
+    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                     help="override an option, e.g. --set stages.0.cell_size=0.25")
+    run.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS)
+
+    validate = sub.add_parser("validate", help="check a pipeline file without reading any point")
+    validate.add_argument("pipeline")
+    validate.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                          dest="overrides")
+    validate.add_argument("--input", "-i", metavar="PATH")
+    validate.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS)
+
+    sub.add_parser("stages", help="list the stages and writers")
+    describe = sub.add_parser("describe", help="options of a stage or writer")
+    describe.add_argument("name")
+    describe.add_argument("--markdown", action="store_true", help="print the docs page")
+
+    try:  # evaluation commands (o3d_terrain.evaluation)
+        from .evaluation.commands import add_eval_commands
+    except ImportError:
+        add_eval_commands = None
+    if add_eval_commands is not None:
+        add_eval_commands(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    verbose = getattr(args, "verbose", False)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_CONFIG
+    try:
+        if args.command == "run":
+            return _run(args, verbose)
+        if args.command == "validate":
+            pipeline = load_pipeline(args.pipeline, overrides=args.overrides, input_path=args.input)
+            print(f"{args.pipeline}: valid ({len(pipeline.stages)} stages, "
+                  f"{len(pipeline.outputs)} outputs)")
+            return EXIT_OK
+        if args.command == "stages":
+            print(list_text())
+            return EXIT_OK
+        if args.command == "describe":
+            return _describe(args)
+        if hasattr(args, "handler"):
+            return int(args.handler(args) or 0)
+    except ConfigError as exc:
+        _error(exc)
+        return EXIT_CONFIG
+    except O3DTerrainError as exc:
+        _error(exc, verbose)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_FAILURE
+    except Exception as exc:  # an unexpected failure: short message unless -v
+        _error(exc, verbose, unexpected=True)
+        return EXIT_FAILURE
+    parser.print_help()
+    return EXIT_CONFIG
+
+
+def _error(exc: BaseException, verbose: bool = False, unexpected: bool = False) -> None:
+    if verbose:
+        traceback.print_exception(type(exc), exc, exc.__traceback__)
+    prefix = "error" if not unexpected else f"error ({type(exc).__name__})"
+    print(f"{prefix}: {exc}", file=sys.stderr)
+    if unexpected and not verbose:
+        print("(run with -v for the traceback)", file=sys.stderr)
+
+
+def _expand_inputs(inputs: Sequence[str]) -> list[Path]:
+    from .io import CLOUD_EXTENSIONS
+
+    paths: list[Path] = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in CLOUD_EXTENSIONS)
+            if not found:
+                raise ConfigError(Problem("--input", f"folder '{item}' has no point cloud files"))
+            paths += found
+        else:
+            paths.append(path)
+    return paths
+
+
+def _run(args: argparse.Namespace, verbose: bool) -> int:
+    inputs = _expand_inputs(args.input)
+    if len(inputs) <= 1:
+        pipeline = load_pipeline(args.pipeline, overrides=args.overrides,
+                                 input_path=inputs[0] if inputs else None)
+        output = args.output or pipeline.output_dir or "out"
+        result = pipeline.run(output_dir=output)
+        _report(result, verbose)
+        return EXIT_OK
+    # a batch: check once with the first input, then keep going past a bad one
+    load_pipeline(args.pipeline, overrides=args.overrides, input_path=inputs[0])
+    failed = []
+    for path in inputs:
+        out = Path(args.output or "out") / path.stem
+        try:
+            pipeline = load_pipeline(args.pipeline, overrides=args.overrides, input_path=path)
+            result = pipeline.run(output_dir=out)
+            print(f"{path}: ok ({result.seconds:.2f} s) -> {out}")
+            if verbose:
+                _report(result, verbose)
+        except (O3DTerrainError, OSError, ValueError) as exc:
+            failed.append(path)
+            print(f"{path}: FAILED: {exc}", file=sys.stderr)
+    print(f"{len(inputs) - len(failed)} of {len(inputs)} inputs done"
+          + (f"; failed: {', '.join(str(p) for p in failed)}" if failed else ""))
+    return EXIT_FAILURE if failed else EXIT_OK
+
+
+def _report(result, verbose: bool) -> None:
+    for note in result.frame.notes:
+        print(f"note: {note}")
+    if verbose:
+        for name, seconds in result.timings.items():
+            print(f"  {name}: {seconds * 1000:.1f} ms")
+    for path in result.written:
+        print(f"wrote {path}")
+    print(f"done: {len(result.frame)} points in {result.seconds:.2f} s")
+
+
+def _describe(args: argparse.Namespace) -> int:
+    registry = {**STAGES, **WRITERS}
+    if args.name not in registry:
+        hint = did_you_mean(args.name, list(registry))
+        raise ConfigError(Problem("describe", f"unknown stage or writer '{args.name}'"
+                                  + (f" ({hint})" if hint else ""),
+                                  "run 'o3d-terrain stages' for the list"))
+    print(describe_text(registry[args.name], markdown=args.markdown))
+    return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,319 @@
+"""YAML pipelines: a source, stages in order, and outputs.
+
+A pipeline file::
+
+    source:                      # where the first frame comes from
+      type: ReadCloud
+      path: scan.laz             # relative paths resolve against this file's folder
+    stages:
+      - type: GridQuantize
+        cell_size: 0.5
+      - type: RationalBSplineTerrain
+    outputs:                     # paths relative to the output folder
+      - type: WriteCloud
+        path: labelled.ply
+    output_dir: out              # optional; --output on the command line wins
+
+The whole file is checked before any point is read, and every problem is reported at once with
+its location and a fix (:class:`~o3d_terrain.errors.ConfigError`).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import yaml
+
+from .errors import ConfigError, O3DTerrainError, Problem, StageError, did_you_mean
+from .frame import Frame, as_frame
+from .options import Component
+from .stages import STAGES, SourceStage, Stage
+from .stages.base import producers_text
+from .writers import WRITERS, Writer
+
+TOP_LEVEL_KEYS = ("source", "stages", "outputs", "output_dir", "description")
+RESOLVED_NAME = "pipeline.resolved.yaml"
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """A checked pipeline. Build it with :func:`load_pipeline` or :func:`parse_pipeline`, or
+    directly from stage objects in Python."""
+
+    stages: tuple[Stage, ...]
+    source: SourceStage | None = None
+    outputs: tuple[Writer, ...] = ()
+    output_dir: Path | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        problems = check_chain(self.source, self.stages, self.outputs)
+        if problems:
+            raise ConfigError(problems)
+
+    def run(self, data: Any = None, *, output_dir: str | Path | None = None) -> "RunResult":
+        """Run on ``data`` (any cloud :func:`as_frame` accepts) or on the source, then write."""
+        timings: dict[str, float] = {}
+        start = time.perf_counter()
+        if data is not None:
+            frame = as_frame(data)
+        elif self.source is not None:
+            frame = _located(lambda: self.source(), f"source {self.source.type_name}")
+            timings[f"source {self.source.type_name}"] = time.perf_counter() - start
+        else:
+            raise ConfigError(Problem("pipeline", "no input", "give a source in the file or --input"))
+        for index, stage in enumerate(self.stages):
+            t0 = time.perf_counter()
+            frame = _located(lambda: stage(frame), f"stages[{index}] {stage.type_name}")
+            timings[f"stages[{index}] {stage.type_name}"] = time.perf_counter() - t0
+        written: list[Path] = []
+        out = Path(output_dir) if output_dir is not None else self.output_dir
+        if self.outputs or out is not None:
+            out = out if out is not None else Path("out")
+            out.mkdir(parents=True, exist_ok=True)
+            for index, writer in enumerate(self.outputs):
+                written += _located(lambda: writer.write(frame, out),
+                                    f"outputs[{index}] {writer.type_name}")
+            resolved = out / RESOLVED_NAME
+            resolved.write_text(yaml.safe_dump(self.to_config(), sort_keys=False))
+            written.append(resolved)
+        return RunResult(frame, written, timings, time.perf_counter() - start)
+
+    def to_config(self) -> dict:
+        config: dict[str, Any] = {}
+        if self.description:
+            config["description"] = self.description
+        if self.source is not None:
+            config["source"] = self.source.to_config()
+        config["stages"] = [s.to_config() for s in self.stages]
+        config["outputs"] = [w.to_config() for w in self.outputs]
+        return config
+
+
+@dataclass
+class RunResult:
+    frame: Frame
+    written: list[Path] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def _located(call, location: str):
+    """Run ``call``; prefix a failure's message with where in the pipeline it happened."""
+    try:
+        return call()
+    except ConfigError:
+        raise
+    except O3DTerrainError as exc:
+        raise type(exc)(f"{location}: {exc}") from exc
+    except KeyError as exc:  # a missing product or attribute
+        raise StageError(f"{location}: {exc.args[0] if exc.args else exc}") from exc
+
+
+# ---------------------------------------------------------------------------------------------
+# checking
+
+
+def check_chain(
+    source: SourceStage | None, stages: Sequence[Stage], outputs: Sequence[Writer]
+) -> list[Problem]:
+    """Problems in the order of stages: a product read before any stage makes it."""
+    problems = []
+    available = set(source.writes) if source is not None else set()
+    for index, stage in enumerate(stages):
+        if stage.is_source:
+            problems.append(Problem(f"stages[{index}] {stage.type_name}",
+                                    "is a source stage and cannot run after the first frame",
+                                    "move it to 'source:'"))
+        for product in stage.reads:
+            if product not in available:
+                problems.append(Problem(
+                    f"stages[{index}] {stage.type_name}",
+                    f"needs the product '{product}', which no earlier stage makes",
+                    f"add {producers_text(product)} before it"))
+        available |= set(stage.writes)
+    for index, writer in enumerate(outputs):
+        for product in writer.required_products():
+            if product not in available:
+                made = ", ".join(sorted(available)) or "none"
+                hint = did_you_mean(product, sorted(available))
+                problems.append(Problem(
+                    f"outputs[{index}] {writer.type_name}",
+                    f"writes the product '{product}', which no stage makes (products: {made})",
+                    hint or f"add {producers_text(product)} to the stages"))
+    return problems
+
+
+def _build(
+    registry: Mapping[str, type[Component]], item: Any, location: str, base_dir: Path | None,
+    kind: str,
+) -> tuple[Component | None, list[Problem]]:
+    if not isinstance(item, Mapping):
+        return None, [Problem(location, f"must be a mapping with 'type:' and options, got {item!r}")]
+    type_name = item.get("type")
+    if not isinstance(type_name, str):
+        return None, [Problem(location, "has no 'type:'",
+                              f"add 'type: <{kind}>' (one of {', '.join(sorted(registry))})")]
+    cls = registry.get(type_name)
+    where = f"{location} {type_name}"
+    if cls is None:
+        hint = did_you_mean(type_name, list(registry))
+        return None, [Problem(where, f"unknown {kind} '{type_name}'" + (f" ({hint})" if hint else ""),
+                              "" if hint else f"{kind}s are: {', '.join(sorted(registry))}")]
+    options = {k: v for k, v in item.items() if k != "type"}
+    problems = []
+    for name in cls.path_options:
+        value = options.get(name)
+        if isinstance(value, str) and value:
+            path = Path(value).expanduser()
+            if not path.is_absolute() and base_dir is not None:
+                path = base_dir / path
+            options[name] = str(path)
+            if not path.exists():
+                problems.append(Problem(where, f"input file '{value}' not found (looked for {path})",
+                                        "check the path; relative paths resolve against the "
+                                        "pipeline file's folder"))
+    problems += cls.check_config(options, where)
+    if problems:
+        return None, problems
+    return cls.from_config(options, where), []
+
+
+def parse_pipeline(config: Any, *, base_dir: str | Path | None = None) -> Pipeline:
+    """Build a pipeline from a mapping (the parsed YAML). Raises ConfigError with every problem."""
+    base = Path(base_dir) if base_dir is not None else None
+    problems: list[Problem] = []
+    if not isinstance(config, Mapping):
+        raise ConfigError(Problem("pipeline", f"must be a mapping with 'stages:', got {type(config).__name__}"))
+    for key in config:
+        if key not in TOP_LEVEL_KEYS:
+            hint = did_you_mean(str(key), TOP_LEVEL_KEYS)
+            problems.append(Problem("pipeline", f"unknown key '{key}'" + (f" ({hint})" if hint else ""),
+                                    "" if hint else f"keys are: {', '.join(TOP_LEVEL_KEYS)}"))
+    source = None
+    if config.get("source") is not None:
+        source, found = _build(STAGES, config["source"], "source", base, "stage")
+        problems += found
+        if source is not None and not source.is_source:
+            problems.append(Problem(f"source {source.type_name}", "is not a source stage",
+                                    "use ReadCloud, StereoToCloud or SyntheticScene"))
+            source = None
+    stages_config = config.get("stages", [])
+    if stages_config is None:
+        stages_config = []
+    if not isinstance(stages_config, list):
+        problems.append(Problem("stages", "must be a list of stages"))
+        stages_config = []
+    stages = []
+    for index, item in enumerate(stages_config):
+        stage, found = _build(STAGES, item, f"stages[{index}]", base, "stage")
+        problems += found
+        stages.append(stage)
+    outputs_config = config.get("outputs", []) or []
+    if not isinstance(outputs_config, list):
+        problems.append(Problem("outputs", "must be a list of writers"))
+        outputs_config = []
+    outputs = []
+    for index, item in enumerate(outputs_config):
+        writer, found = _build(WRITERS, item, f"outputs[{index}]", None, "writer")
+        problems += found
+        outputs.append(writer)
+    if all(s is not None for s in stages) and all(w is not None for w in outputs):
+        problems += check_chain(source, stages, outputs)
+    output_dir = config.get("output_dir")
+    if output_dir is not None and not isinstance(output_dir, str):
+        problems.append(Problem("output_dir", f"must be a folder path, got {output_dir!r}"))
+    if problems:
+        raise ConfigError(problems)
+    out = None
+    if output_dir:
+        out = Path(output_dir)
+        out = out if out.is_absolute() or base is None else base / out
+    return Pipeline(tuple(stages), source, tuple(outputs), out, str(config.get("description", "")))
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Parse a YAML file with ``yaml.safe_load``; problems become ConfigError with line numbers."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(Problem(str(path), "no such pipeline file", "check the path"))
+    if path.is_dir():
+        raise ConfigError(Problem(str(path), "is a folder, not a pipeline file"))
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(Problem(str(path), f"cannot be read ({exc})")) from exc
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        what = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(Problem(where, f"invalid YAML: {what}",
+                                  "check indentation and that lists use '- '")) from exc
+
+
+def apply_overrides(config: Any, overrides: Iterable[str]) -> Any:
+    """Apply ``key.path=value`` overrides (``stages.1.cell_size=0.25``); values parse as YAML."""
+    config = copy.deepcopy(config) if config is not None else {}
+    problems = []
+    for text in overrides:
+        if "=" not in text:
+            problems.append(Problem(f"--set {text}", "must look like KEY=VALUE",
+                                    "e.g. --set stages.0.cell_size=0.25"))
+            continue
+        key, raw = text.split("=", 1)
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except yaml.YAMLError:
+            value = raw
+        parts = key.strip().split(".")
+        node = config
+        try:
+            for i, part in enumerate(parts[:-1]):
+                node = node[int(part)] if isinstance(node, list) else node.setdefault(part, {})
+            last = parts[-1]
+            if isinstance(node, list):
+                node[int(last)] = value
+            elif isinstance(node, dict):
+                node[last] = value
+            else:
+                raise TypeError
+        except (IndexError, ValueError, TypeError, KeyError, AttributeError):
+            problems.append(Problem(f"--set {text}", f"'{key}' does not name an option in this file",
+                                    "use stages.<index>.<option>, e.g. stages.0.cell_size=0.25"))
+    if problems:
+        raise ConfigError(problems)
+    return config
+
+
+def load_pipeline(
+    path: str | Path,
+    *,
+    overrides: Sequence[str] = (),
+    input_path: str | Path | None = None,
+) -> Pipeline:
+    """Read, override, resolve and check a pipeline file."""
+    path = Path(path)
+    config = read_yaml(path)
+    if config is None:
+        raise ConfigError(Problem(str(path), "the pipeline file is empty", "add 'stages:'"))
+    if not isinstance(config, dict):
+        raise ConfigError(Problem(str(path), "must be a mapping with 'stages:'"))
+    config = apply_overrides(config, overrides)
+    if input_path is not None:
+        source = config.get("source")
+        if isinstance(source, Mapping) and source.get("type") not in (None, "ReadCloud"):
+            raise ConfigError(Problem(
+                "--input", f"the pipeline's source is {source.get('type')}, not a cloud file",
+                "set the source's options with --set source.<option>=VALUE"))
+        config["source"] = {"type": "ReadCloud", "path": str(Path(input_path).resolve())}
+    try:
+        return parse_pipeline(config, base_dir=path.parent.resolve())
+    except ConfigError as exc:
+        raise ConfigError([Problem(f"{path.name}: {p.location}" if p.location else path.name,
+                                   p.message, p.fix) for p in exc.problems]) from None

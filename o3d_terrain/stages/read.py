@@ -1,0 +1,28 @@
+"""ReadCloud: a point cloud file as the source of a pipeline."""
+
+from __future__ import annotations
+
+from ..frame import Frame
+from ..io import CLOUD_EXTENSIONS, read_cloud
+from ..options import option
+from .base import SourceStage, stage
+
+
+def _check_extension(path: str) -> str | None:
+    if not str(path).lower().endswith(CLOUD_EXTENSIONS):
+        return f"must name a point cloud file ({', '.join(CLOUD_EXTENSIONS)})"
+    return None
+
+
+@stage
+class ReadCloud(SourceStage):
+    """Read a point cloud file: PLY, PCD, XYZ/TXT/CSV, NPY, KITTI .bin, LAS/LAZ."""
+
+    path_options = ("path",)
+    writes = ()
+    example = {"path": "cloud.ply"}
+
+    path: str = option(kind="path", check=_check_extension, help="the point cloud file to read")
+
+    def read(self) -> Frame:
+        return Frame(read_cloud(self.path)).with_note(f"{self.type_name}: read {self.path}")

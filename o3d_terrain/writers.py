@@ -1,0 +1,190 @@
+"""Writers: the ``outputs:`` of a pipeline file. Registered by class name in :data:`WRITERS`.
+
+Each writer is a frozen validated dataclass like a stage. ``path`` is relative to the output
+folder (``--output`` on the command line, or ``output_dir`` in the pipeline file).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+
+from . import io
+from .errors import InputError
+from .frame import Frame
+from .grid import HeightGrid
+from .options import Component, component, option
+
+#: every registered writer by class name (the YAML ``type:`` under ``outputs:``)
+WRITERS: dict[str, type["Writer"]] = {}
+
+
+def writer(cls: type | None = None, *, summary: str = "") -> Any:
+    decorate: Callable[[type], type] = component(WRITERS, summary)
+    return decorate(cls) if cls is not None else decorate
+
+
+class Writer(Component):
+    """Writes part of a frame to files."""
+
+    example: ClassVar[dict[str, Any] | None] = None
+
+    def required_products(self) -> tuple[str, ...]:
+        return ()
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _target(self, out_dir: Path, path: str) -> Path:
+        target = Path(path)
+        return target if target.is_absolute() else Path(out_dir) / target
+
+
+# ---------------------------------------------------------------------------------------------
+# colours for point labels (values of o3d_terrain.segment.Label)
+
+LABEL_COLORS = {
+    0: (0.55, 0.55, 0.55),  # unknown: non-finite or outside the terrain region
+    1: (0.20, 0.70, 0.25),  # terrain
+    2: (0.90, 0.15, 0.10),  # obstacle
+    3: (0.15, 0.35, 0.95),  # below the terrain (noise)
+}
+
+
+def _colors_for(frame: Frame, attribute: str, colormap: str) -> np.ndarray:
+    values = np.asarray(frame.attribute(attribute))
+    if values.ndim != 1:
+        raise InputError(f"attribute '{attribute}' has {values.shape[1]} columns; color_by needs one")
+    if attribute == "labels" or np.issubdtype(values.dtype, np.integer) and values.max(initial=0) < 8:
+        table = np.array([LABEL_COLORS.get(i, (0.0, 0.0, 0.0)) for i in range(8)])
+        return table[np.clip(values.astype(np.int64), 0, 7)]
+    import cv2
+
+    finite = np.isfinite(values)
+    low, high = (np.percentile(values[finite], [2, 98]) if finite.any() else (0.0, 1.0))
+    scaled = np.clip((values - low) / max(high - low, 1e-12), 0, 1)
+    scaled[~finite] = 0
+    gray = (scaled * 255).astype(np.uint8)[:, None]
+    bgr = cv2.applyColorMap(gray, io.COLORMAPS.get(colormap) or 20)[:, 0, :]
+    rgb = bgr[:, ::-1].astype(np.float64) / 255.0
+    rgb[~finite] = 0.5
+    return rgb
+
+
+@writer
+class WriteCloud(Writer):
+    """Write the cloud with its per-point attributes (PLY, PCD, NPZ, XYZ)."""
+
+    path: str = option("cloud.ply", kind="path", help="file name (.ply, .pcd, .npz, .xyz, .txt)")
+    color_by: str = option(
+        None, kind=str, nullable=True,
+        help="per-point attribute to colour the points by (e.g. labels, heights_above_terrain); "
+             "null keeps the cloud's own colours",
+    )
+    colormap: str = option("turbo", choices=tuple(io.COLORMAPS), help="colour map for color_by")
+
+    def check_options(self) -> list[str]:
+        suffix = Path(self.path).suffix.lower()
+        if suffix not in io.WRITE_EXTENSIONS:
+            return [f"The 'path' option of WriteCloud must end in one of "
+                    f"{', '.join(io.WRITE_EXTENSIONS)}. Got {self.path!r}."]
+        return []
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:
+        if self.color_by:
+            frame = frame.with_attributes(colors=_colors_for(frame, self.color_by, self.colormap))
+        return [io.write_cloud(self._target(out_dir, self.path), frame)]
+
+
+def image_layers(product: Any) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+    """The 2-D layers a product offers for images: name -> (values [ix, iy], valid mask, unit)."""
+    if isinstance(product, HeightGrid):
+        valid = product.valid
+        return {
+            "z": (product.z, valid, "m"),
+            "count": (product.count.astype(float), product.count > 0, "pts"),
+            "state": (product.state.astype(float), np.ones_like(valid), ""),
+        }
+    if hasattr(product, "image_layers"):
+        return product.image_layers()
+    if isinstance(product, np.ndarray) and product.ndim == 2:
+        return {"values": (product, np.isfinite(product), "")}
+    raise InputError(f"a {type(product).__name__} product cannot be drawn as an image")
+
+
+@writer
+class WriteImage(Writer):
+    """Write a PNG image of a grid product (height grid, surface raster, slope or cost map)."""
+
+    product: str = option("grid", kind=str, help="product to draw (grid, surface, slope_grid, ...)")
+    layer: str = option(
+        None, kind=str, nullable=True,
+        help="layer of the product (grid: z, count, state); null = the product's first layer",
+    )
+    path: str = option("height.png", kind="path", help="image file name (.png)")
+    colormap: str = option("turbo", choices=tuple(io.COLORMAPS), help="colour map")
+    value_range: tuple = option(
+        None, kind=float, length=2, nullable=True,
+        help="values mapped to the ends of the colour map; null = 1st-99th percentile",
+    )
+
+    def required_products(self) -> tuple[str, ...]:
+        return (self.product,)
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:
+        layers = image_layers(frame.product(self.product))
+        name = self.layer or next(iter(layers))
+        if name not in layers:
+            raise InputError(
+                f"WriteImage: product '{self.product}' has no layer '{name}' "
+                f"(layers: {', '.join(layers)})"
+            )
+        values, valid, unit = layers[name]
+        image = io.render_grid_image(
+            values, valid=valid, colormap=self.colormap, value_range=self.value_range,
+            title=f"{self.product}: {name}", unit=unit,
+        )
+        return [io.write_image(self._target(out_dir, self.path), image)]
+
+
+@writer
+class WriteProduct(Writer):
+    """Save a product (grid, surface, ...) to an NPZ file with its ``save`` method."""
+
+    product: str = option("surface", kind=str, help="product to save")
+    path: str = option("surface.npz", kind="path", help="file name (.npz)")
+
+    def required_products(self) -> tuple[str, ...]:
+        return (self.product,)
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:
+        value = frame.product(self.product)
+        target = self._target(out_dir, self.path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if hasattr(value, "save"):
+            value.save(target)
+        elif isinstance(value, np.ndarray):
+            np.savez_compressed(target, values=value)
+        else:
+            raise InputError(f"WriteProduct: product '{self.product}' cannot be saved to a file")
+        return [target]
+
+
+@writer
+class WriteAttribute(Writer):
+    """Save one per-point attribute (e.g. labels) as a NumPy .npy or a text file."""
+
+    attribute: str = option("labels", kind=str, help="per-point attribute name")
+    path: str = option("labels.npy", kind="path", help="file name (.npy or .txt)")
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:
+        values = np.asarray(frame.attribute(self.attribute))
+        target = self._target(out_dir, self.path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if target.suffix.lower() == ".txt":
+            np.savetxt(target, values, fmt="%d" if np.issubdtype(values.dtype, np.integer) else "%.6f")
+        else:
+            np.save(target, values)
+        return [target]
