@@ -1,0 +1,204 @@
+"""Spline math: oracles (scipy NdBSpline, naive Cox-de Boor, central differences) and properties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.interpolate import BSpline, NdBSpline
+
+from o3d_terrain._kernels import bspline as kb
+from o3d_terrain.errors import InputError
+from o3d_terrain.spline import TerrainSurface, clamped_uniform_knots, make_lsq_surface
+
+import naive_spline
+
+
+def random_surface(rng, n0=7, n1=6, degree=3, rational=True, origin=(0.0, 0.0, 0.0)):
+    kx = clamped_uniform_knots(n0, degree, -5.0, 7.0)
+    ky = clamped_uniform_knots(n1, degree, -3.0, 4.0)
+    q = rng.normal(size=(n0, n1))
+    r = rng.uniform(0.5, 2.0, size=(n0, n1)) if rational else np.ones((n0, n1))
+    return TerrainSurface(degree, kx, ky, q, r, origin)
+
+
+def test_knots_are_clamped_and_uniform():
+    k = clamped_uniform_knots(6, 3, 0.0, 3.0)
+    assert k.size == 10
+    np.testing.assert_allclose(k, [0, 0, 0, 0, 1, 2, 3, 3, 3, 3])
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4])
+def test_basis_partition_of_unity_and_derivatives_match_scipy(degree):
+    n = 9
+    knots = clamped_uniform_knots(n, degree, 0.0, 5.0)
+    t = np.linspace(0.0, 5.0, 101)
+    spans, values = kb.basis_table(t, n, degree, knots, 1)
+    np.testing.assert_allclose(values[:, 0, :].sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(values[:, 1, :].sum(axis=1), 0.0, atol=1e-10)
+    for a in range(n):
+        c = np.zeros(n)
+        c[a] = 1.0
+        ref = BSpline(knots, c, degree)
+        ours = np.zeros_like(t)
+        dours = np.zeros_like(t)
+        for r in range(degree + 1):
+            hit = spans - degree + r == a
+            ours[hit] = values[hit, 0, r]
+            dours[hit] = values[hit, 1, r]
+        np.testing.assert_allclose(ours, ref(t), atol=1e-12)
+        np.testing.assert_allclose(dours, ref.derivative()(t), atol=1e-9)
+
+
+def test_unit_weights_equal_scipy_ndbspline():
+    rng = np.random.default_rng(0)
+    s = random_surface(rng, rational=False)
+    ref = NdBSpline((s.knots_x, s.knots_y), s.control_points, s.degree)
+    x = rng.uniform(-5, 7, 500)
+    y = rng.uniform(-3, 4, 500)
+    np.testing.assert_allclose(s(x, y), ref(np.stack([x, y], 1)), atol=1e-9)
+    gx, gy = s.gradient(x, y)
+    np.testing.assert_allclose(gx, ref(np.stack([x, y], 1), nu=(1, 0)), atol=1e-9)
+    np.testing.assert_allclose(gy, ref(np.stack([x, y], 1), nu=(0, 1)), atol=1e-9)
+
+
+def test_rational_surface_equals_naive_double_sum():
+    rng = np.random.default_rng(1)
+    s = random_surface(rng, n0=5, n1=6, degree=2)
+    for x, y in rng.uniform([-5, -3], [7, 4], size=(30, 2)):
+        ref = naive_spline.rational_surface(x, y, s.knots_x, s.knots_y, s.degree,
+                                            s.control_points, s.weights)
+        assert s(x, y) == pytest.approx(ref, abs=1e-12)
+    # the right and top edges belong to the last span
+    ref = naive_spline.rational_surface(7.0, 4.0, s.knots_x, s.knots_y, s.degree,
+                                        s.control_points, s.weights)
+    assert s(7.0, 4.0) == pytest.approx(ref, abs=1e-12)
+
+
+def test_rational_derivatives_equal_central_differences():
+    rng = np.random.default_rng(2)
+    s = random_surface(rng)
+    x = rng.uniform(-4.9, 6.9, 200)
+    y = rng.uniform(-2.9, 3.9, 200)
+    h = 1e-5
+    gx, gy = s.gradient(x, y)
+    np.testing.assert_allclose(gx, (s(x + h, y) - s(x - h, y)) / (2 * h), atol=1e-6)
+    np.testing.assert_allclose(gy, (s(x, y + h) - s(x, y - h)) / (2 * h), atol=1e-6)
+
+
+def test_weights_scale_invariance_and_convex_hull():
+    rng = np.random.default_rng(3)
+    s = random_surface(rng)
+    s2 = TerrainSurface(s.degree, s.knots_x, s.knots_y, s.control_points, 7.5 * s.weights)
+    x = rng.uniform(-5, 7, 100)
+    y = rng.uniform(-3, 4, 100)
+    np.testing.assert_allclose(s(x, y), s2(x, y), atol=1e-12)
+    assert np.all(s(x, y) <= s.control_points.max() + 1e-12)
+    assert np.all(s(x, y) >= s.control_points.min() - 1e-12)
+
+
+def test_slope_of_tilted_plane():
+    x = np.linspace(0, 10, 21)
+    y = np.linspace(-5, 5, 21)
+    z = 0.2 * x[:, None] + 0 * y[None, :]
+    s = make_lsq_surface(x, y, z, control_points=(6, 6), degree=3)
+    px = np.array([1.3, 5.0, 9.7])
+    py = np.array([-4.0, 0.1, 4.9])
+    np.testing.assert_allclose(s(px, py), 0.2 * px, atol=1e-9)
+    np.testing.assert_allclose(s.slope_deg(px, py), np.degrees(np.arctan(0.2)), atol=1e-9)
+    n = s.normals(px, py)
+    np.testing.assert_allclose(n, np.tile([-0.2, 0, 1] / np.sqrt(1.04), (3, 1)), atol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["tensor", "two_pass"])
+def test_fit_reproduces_a_spline_exactly(method):
+    rng = np.random.default_rng(4)
+    s = random_surface(rng, n0=6, n1=5, rational=False)
+    x = np.linspace(-5, 7, 40)
+    y = np.linspace(-3, 4, 30)
+    z = s(x[:, None], y[None, :])
+    w = rng.uniform(0.2, 3.0, z.shape)
+    fit = make_lsq_surface(x, y, z, w, control_points=(6, 5), region=(-5, 7, -3, 4),
+                           method=method)
+    np.testing.assert_allclose(fit.control_points + fit.origin[2], s.control_points, atol=1e-7)
+
+
+def test_tensor_fit_equals_dense_weighted_least_squares():
+    rng = np.random.default_rng(5)
+    x = np.linspace(0, 10, 25)
+    y = np.linspace(0, 8, 20)
+    z = rng.normal(size=(25, 20))
+    w = rng.uniform(0, 2, z.shape)
+    r = rng.uniform(0.5, 2, (6, 5))
+    fit = make_lsq_surface(x, y, z, w, control_points=(6, 5), rational_weights=r,
+                           origin=(0, 0, 0))
+    # dense reference: design matrix of the rational basis, row per sample
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    rows = []
+    for a in range(6):
+        for b in range(5):
+            q = np.zeros((6, 5))
+            q[a, b] = 1.0
+            basis_s = TerrainSurface(3, fit.knots_x, fit.knots_y, q, r)
+            rows.append(basis_s(xx, yy).ravel())
+    design = np.array(rows).T
+    sw = np.sqrt(w.ravel())
+    ref = np.linalg.lstsq(design * sw[:, None], z.ravel() * sw, rcond=None)[0]
+    np.testing.assert_allclose(fit.control_points.ravel(), ref, atol=1e-6)
+
+
+def test_outside_region_is_nan_and_nonfinite_input_is_nan():
+    rng = np.random.default_rng(6)
+    s = random_surface(rng)
+    out = s(np.array([-5.1, 7.1, 0.0, np.nan, 0.0]), np.array([0.0, 0.0, 4.2, 0.0, np.inf]))
+    assert np.isnan(out).all()
+    assert np.isfinite(s(-5.0, -3.0)) and np.isfinite(s(7.0, 4.0))
+
+
+def test_large_projected_coordinates_keep_precision():
+    x0, y0 = 637_000.0, 4_850_000.0
+    x = x0 + np.linspace(0, 50, 51)
+    y = y0 + np.linspace(0, 30, 31)
+    z = 200.0 + 0.1 * (x[:, None] - x0) - 0.05 * (y[None, :] - y0)
+    s = make_lsq_surface(x, y, z, control_points=(8, 8))
+    px, py = x0 + 12.345, y0 + 6.789
+    assert s(px, py) == pytest.approx(200.0 + 1.2345 - 0.33945, abs=1e-8)
+
+
+def test_save_load_round_trip(tmp_path):
+    rng = np.random.default_rng(7)
+    s = random_surface(rng, origin=(1e6, 2e6, 300.0))
+    s.save(tmp_path / "s.npz")
+    t = TerrainSurface.load(tmp_path / "s.npz")
+    x = 1e6 + rng.uniform(-5, 7, 50)
+    y = 2e6 + rng.uniform(-3, 4, 50)
+    np.testing.assert_array_equal(s(x, y), t(x, y))
+    assert t.origin == s.origin and t.degree == s.degree
+    np.save(tmp_path / "other.npy", np.zeros(3))
+    with pytest.raises(InputError, match="TerrainSurface"):
+        TerrainSurface.load(tmp_path / "other.npy")
+
+
+def test_raster_and_mesh_export():
+    rng = np.random.default_rng(8)
+    s = random_surface(rng)
+    z, xc, yc = s.to_raster(0.5)
+    assert z.shape == (xc.size, yc.size) == (24, 14)
+    np.testing.assert_allclose(z, s(xc[:, None], yc[None, :]))
+    mesh = s.to_mesh(1.0)
+    v = np.asarray(mesh.vertices)
+    np.testing.assert_allclose(v[:, 2], s(v[:, 0], v[:, 1]), atol=1e-12)
+    assert len(mesh.triangles) == 2 * 12 * 7
+    assert v[:, 0].max() == pytest.approx(7.0) and v[:, 1].min() == pytest.approx(-3.0)
+
+
+def test_invalid_surfaces_are_rejected_with_reasons():
+    kx = clamped_uniform_knots(5, 3, 0, 1)
+    with pytest.raises(InputError, match="weights"):
+        TerrainSurface(3, kx, kx, np.zeros((5, 5)), -np.ones((5, 5)))
+    with pytest.raises(InputError, match="knots"):
+        TerrainSurface(3, kx[:-1], kx, np.zeros((5, 5)), np.ones((5, 5)))
+    with pytest.raises(InputError, match="at least 4 control points"):
+        clamped_uniform_knots(3, 3, 0, 1)
+    with pytest.raises(InputError, match="degenerate"):
+        make_lsq_surface([0, 1, 2], [0, 1, 2], np.zeros((3, 3)), control_points=(4, 4),
+                         region=(0, 0, 0, 2))
