@@ -3,5 +3,7 @@
 from .base import STAGES, SourceStage, Stage, stage
 from .grid_quantize import GridQuantize
 from .read import ReadCloud
+from .synthetic import SyntheticScene
 
 __all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize", "ReadCloud"]
+__all__ += ["SyntheticScene"]
