@@ -94,11 +94,14 @@ def grid_shape(region: tuple[float, float, float, float], cell_size: float) -> t
 
 def region_of(positions: np.ndarray) -> tuple[float, float, float, float]:
     """The x/y bounding box of the finite points."""
-    finite = np.isfinite(positions).all(axis=1)
-    if not finite.any():
+    positions = np.asarray(positions, dtype=np.float64)
+    x_min, x_max, y_min, y_max, n = _grid.finite_bounds(
+        np.ascontiguousarray(positions[:, 0]), np.ascontiguousarray(positions[:, 1]),
+        np.ascontiguousarray(positions[:, 2]),
+    )
+    if n == 0:
         raise InputError("the cloud has no finite point; give a cloud with at least one point")
-    p = positions[finite]
-    return (float(p[:, 0].min()), float(p[:, 0].max()), float(p[:, 1].min()), float(p[:, 1].max()))
+    return (float(x_min), float(x_max), float(y_min), float(y_max))
 
 
 def quantize_points(
@@ -115,8 +118,14 @@ def quantize_points(
         raise InputError(f"positions must be (N, 3), got {positions.shape}")
     if len(positions) == 0:
         raise InputError("the cloud is empty; give a cloud with points")
+    x = np.ascontiguousarray(positions[:, 0])
+    y = np.ascontiguousarray(positions[:, 1])
+    z = np.ascontiguousarray(positions[:, 2])
     if region is None:
-        region = region_of(positions)
+        x_min, x_max, y_min, y_max, n = _grid.finite_bounds(x, y, z)
+        if n == 0:
+            raise InputError("the cloud has no finite point; give a cloud with at least one point")
+        region = (float(x_min), float(x_max), float(y_min), float(y_max))
     x_min, x_max, y_min, y_max = region
     if not (x_max >= x_min and y_max >= y_min):
         raise InputError(f"region {tuple(region)} is degenerate: x_max must be >= x_min and y_max >= y_min")
@@ -126,9 +135,6 @@ def quantize_points(
             f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
-    x = np.ascontiguousarray(positions[:, 0])
-    y = np.ascontiguousarray(positions[:, 1])
-    z = np.ascontiguousarray(positions[:, 2])
     cells = _grid.cell_indices(x, y, x_min, y_min, cell_size, nx, ny)
     height, count, state, lowest = _grid.quantize(cells, z, nx, ny, min_points, fill_empty)
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest)

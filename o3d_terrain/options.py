@@ -87,11 +87,13 @@ class OptionSpec:
 
     # -- description -------------------------------------------------------------------------
     def type_text(self) -> str:
-        base = {float: "float", int: "int", bool: "bool", str: "str", "path": "path"}[self.kind]
+        base = {float: "float", int: "int", bool: "bool", str: "string", "path": "path"}[self.kind]
         if self.choices:
             base = "one of " + ", ".join(repr(c) for c in self.choices)
         if self.length:
             base = f"{self.length} × {base}" + (" (or one value for all)" if self.broadcast else "")
+        elif not self.choices:
+            base = ("an " if base[0] in "aeiou" else "a ") + base
         if self.nullable:
             base += " or null"
         return base

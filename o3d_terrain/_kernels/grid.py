@@ -106,3 +106,25 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
         state.reshape(nx, ny),
         lowest.reshape(nx, ny),
     )
+
+
+@numba.njit(cache=True)
+def finite_bounds(x, y, z):
+    """(x_min, x_max, y_min, y_max, number of finite points) over points with finite x, y, z."""
+    x_min = np.inf
+    x_max = -np.inf
+    y_min = np.inf
+    y_max = -np.inf
+    n = 0
+    for k in range(x.shape[0]):
+        if math.isfinite(x[k]) and math.isfinite(y[k]) and math.isfinite(z[k]):
+            n += 1
+            if x[k] < x_min:
+                x_min = x[k]
+            if x[k] > x_max:
+                x_max = x[k]
+            if y[k] < y_min:
+                y_min = y[k]
+            if y[k] > y_max:
+                y_max = y[k]
+    return x_min, x_max, y_min, y_max, n

@@ -1,0 +1,85 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from o3d_terrain.cli import main
+
+
+def _pipeline(tmp_path, source_path, **stage):
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump({
+        "source": {"type": "ReadCloud", "path": str(source_path)},
+        "stages": [{"type": "GridQuantize", **stage}],
+        "outputs": [{"type": "WriteImage", "product": "grid", "path": "height.png"}],
+    }))
+    return path
+
+
+def test_validate_reports_three_problems_and_exits_2(tmp_path, capsys):
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        "source:\n  type: ReadCloud\n  path: missing.bin\n"
+        "stages:\n  - type: GridQuantise\n  - type: GridQuantize\n    cel_size: 0.3\n"
+    )
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "3 problems" in err
+    assert "unknown stage 'GridQuantise' (did you mean 'GridQuantize'?)" in err
+    assert "unknown option 'cel_size' (did you mean 'cell_size'?)" in err
+    assert "input file 'missing.bin' not found" in err
+    assert "Traceback" not in err
+
+
+def test_run_writes_outputs(tmp_path, small_cloud, capsys):
+    np.save(tmp_path / "c.npy", small_cloud)
+    path = _pipeline(tmp_path, tmp_path / "c.npy", cell_size=1.0)
+    assert main(["run", str(path), "--output", str(tmp_path / "out"),
+                 "--set", "stages.0.cell_size=2.0"]) == 0
+    out = capsys.readouterr().out
+    assert "wrote" in out and (tmp_path / "out" / "height.png").exists()
+    resolved = yaml.safe_load((tmp_path / "out" / "pipeline.resolved.yaml").read_text())
+    assert resolved["stages"][0]["cell_size"] == 2.0
+
+
+def test_batch_keeps_going_past_a_bad_input(tmp_path, small_cloud, capsys):
+    np.save(tmp_path / "a.npy", small_cloud)
+    (tmp_path / "b.npy").write_bytes(b"garbage")
+    np.save(tmp_path / "c.npy", small_cloud)
+    path = _pipeline(tmp_path, tmp_path / "a.npy")
+    code = main(["run", str(path), "-o", str(tmp_path / "out"), "-i", str(tmp_path / "a.npy"),
+                 "-i", str(tmp_path / "b.npy"), "-i", str(tmp_path / "c.npy")])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "b.npy: FAILED" in captured.err
+    assert "2 of 3 inputs done" in captured.out
+    assert (tmp_path / "out" / "c" / "height.png").exists()
+
+
+def test_runtime_failure_exits_1_without_traceback(tmp_path, capsys):
+    (tmp_path / "nan.npy").write_bytes(b"")
+    np.save(tmp_path / "nan.npy", np.full((5, 3), np.nan))
+    path = _pipeline(tmp_path, tmp_path / "nan.npy")
+    assert main(["run", str(path), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "GridQuantize" in err and "no finite point" in err and "Traceback" not in err
+
+
+def test_stages_describe_and_unknown(capsys):
+    assert main(["stages"]) == 0
+    assert "GridQuantize" in capsys.readouterr().out
+    assert main(["describe", "GridQuantize"]) == 0
+    assert "cell_size [m] = 0.5" in capsys.readouterr().out
+    assert main(["describe", "GridQuantise"]) == 2
+    assert "did you mean 'GridQuantize'?" in capsys.readouterr().err
+
+
+def test_console_script_and_module_entry_points():
+    done = subprocess.run([sys.executable, "-m", "o3d_terrain", "--version"], capture_output=True,
+                          text=True, check=True)
+    assert done.stdout.startswith("o3d-terrain ")
+    with pytest.raises(SystemExit) as info:
+        main(["run"])
+    assert info.value.code == 2

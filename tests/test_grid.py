@@ -1,0 +1,89 @@
+import numpy as np
+import pytest
+
+from naive import grid_quantize as naive_quantize
+from o3d_terrain import GridQuantize, InputError, quantize_points
+from o3d_terrain.errors import ConfigError
+from o3d_terrain.grid import FILLED, INVALID, MEASURED
+
+
+def test_kernel_matches_reference_exactly(rng):
+    pts = rng.normal(0, 3, size=(3000, 3))
+    pts[::97] = np.nan  # non-finite points are skipped
+    pts[5, 2] = np.inf
+    grid = quantize_points(pts, cell_size=0.7, region=(-6, 6, -5, 5))
+    z, count, state = naive_quantize(pts, -6, -5, 0.7, grid.nx, grid.ny)
+    np.testing.assert_array_equal(grid.z, z)
+    np.testing.assert_array_equal(grid.count, count)
+    np.testing.assert_array_equal(grid.state, state)
+
+
+@pytest.mark.parametrize("min_points,fill", [(3, True), (1, False)])
+def test_kernel_matches_reference_options(rng, min_points, fill):
+    pts = rng.uniform(0, 4, size=(400, 3))
+    grid = quantize_points(pts, cell_size=0.5, min_points=min_points, fill_empty=fill)
+    x0, _, y0, _ = grid.region
+    z, count, state = naive_quantize(pts, x0, y0, 0.5, grid.nx, grid.ny, min_points, fill)
+    np.testing.assert_array_equal(grid.z, z)
+    np.testing.assert_array_equal(grid.state, state)
+
+
+def test_equation_one_on_a_single_cell():
+    z = np.array([1.0, 2.0, 3.0, 10.0])
+    pts = np.column_stack([np.full(4, 0.1), np.full(4, 0.1), z])
+    grid = quantize_points(pts, cell_size=1.0, region=(0, 1, 0, 1))
+    expected = max(z.min(), z.mean() - z.std())
+    assert grid.z[0, 0] == pytest.approx(expected)
+    assert grid.state[0, 0] == MEASURED and grid.count[0, 0] == 4
+
+
+def test_low_outlier_bounded_by_min():
+    # eq. 1 stays within [min, max] of the cell
+    z = np.array([0.0, 0.0, 0.0, -5.0])
+    pts = np.column_stack([np.full(4, 0.5), np.full(4, 0.5), z])
+    grid = quantize_points(pts, cell_size=1.0, region=(0, 1, 0, 1))
+    assert z.min() <= grid.z[0, 0] <= z.max()
+
+
+def test_fill_and_invalid_states():
+    # one measured cell in a 5 x 1 strip: its neighbour is filled, the rest invalid
+    pts = np.array([[0.5, 0.5, 2.0]])
+    grid = quantize_points(pts, cell_size=1.0, region=(0, 5, 0, 1))
+    assert list(grid.state[:, 0]) == [MEASURED, FILLED, INVALID, INVALID, INVALID]
+    assert grid.z[1, 0] == 2.0 and grid.z[2, 0] == 0.0
+
+
+def test_far_edge_point_lands_in_last_cell():
+    pts = np.array([[0.0, 0.0, 1.0], [2.0, 2.0, 3.0]])
+    grid = quantize_points(pts, cell_size=1.0)
+    assert grid.shape == (2, 2)
+    assert grid.count.sum() == 2 and grid.count[1, 1] == 1
+
+
+def test_utm_coordinates_keep_precision():
+    base = np.array([500_000.0, 4_500_000.0, 300.0])
+    pts = base + np.array([[0.1, 0.1, 0.0], [0.3, 0.2, 0.001]])
+    grid = quantize_points(pts, cell_size=0.5)
+    assert grid.x_min == pytest.approx(500_000.1, abs=1e-9)
+    assert grid.z[0, 0] == pytest.approx(300.0, abs=1e-6)
+
+
+def test_bad_inputs_have_clear_errors():
+    with pytest.raises(InputError, match="empty"):
+        quantize_points(np.zeros((0, 3)), cell_size=1.0)
+    with pytest.raises(InputError, match="no finite point"):
+        quantize_points(np.full((4, 3), np.nan), cell_size=1.0)
+    with pytest.raises(InputError, match="cells"):
+        quantize_points(np.array([[0, 0, 0], [1e6, 1e6, 0.0]]), cell_size=0.01)
+    with pytest.raises(ConfigError, match="x_max > x_min"):
+        GridQuantize(region=(1, 0, 0, 1))
+
+
+def test_stage_counts_skipped_points(rng):
+    pts = rng.uniform(0, 10, size=(100, 3))
+    pts[:3] = np.nan
+    frame = GridQuantize(cell_size=1.0, region=(0, 5, 0, 10))(pts)
+    notes = " ".join(frame.notes)
+    assert "3 non-finite" in notes and "outside the region" in notes
+    grid = frame.products["grid"]
+    assert grid.count.sum() == ((pts[3:, 0] <= 5)).sum()

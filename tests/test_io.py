@@ -1,0 +1,75 @@
+import numpy as np
+import open3d as o3d
+import pytest
+
+from o3d_terrain import InputError, read_cloud, write_cloud
+from o3d_terrain.frame import as_frame
+
+
+def _positions(cloud):
+    return cloud.point.positions.numpy()
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".pcd", ".npz"])
+def test_write_read_round_trip_keeps_attributes(tmp_path, rng, suffix):
+    pts = rng.normal(size=(50, 3)) + [500000.0, 4500000.0, 200.0]
+    frame = as_frame(pts).with_attributes(labels=np.arange(50, dtype=np.int32) % 3,
+                                          heights=rng.normal(size=50))
+    path = write_cloud(tmp_path / f"c{suffix}", frame)
+    if suffix == ".npz":
+        data = np.load(path)
+        np.testing.assert_array_equal(data["positions"], pts)
+        return
+    back = read_cloud(path)
+    np.testing.assert_allclose(_positions(back), pts, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(back.point.labels.numpy()[:, 0], np.arange(50) % 3)
+
+
+def test_text_numpy_and_kitti(tmp_path, rng):
+    pts = rng.normal(size=(20, 4))
+    np.savetxt(tmp_path / "a.xyz", pts)
+    np.savetxt(tmp_path / "b.csv", pts, delimiter=",", header="x,y,z,i", comments="")
+    np.save(tmp_path / "c.npy", pts[:, :3])
+    pts.astype(np.float32).tofile(tmp_path / "d.bin")
+    for name in ("a.xyz", "b.csv"):
+        cloud = read_cloud(tmp_path / name)
+        np.testing.assert_allclose(_positions(cloud), pts[:, :3])
+        np.testing.assert_allclose(cloud.point.intensities.numpy()[:, 0], pts[:, 3], rtol=1e-6)
+    np.testing.assert_allclose(_positions(read_cloud(tmp_path / "c.npy")), pts[:, :3])
+    kitti = read_cloud(tmp_path / "d.bin")
+    assert kitti.point.positions.dtype == o3d.core.float64
+    np.testing.assert_allclose(_positions(kitti), pts[:, :3].astype(np.float32))
+
+
+def test_unreadable_inputs(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        read_cloud(tmp_path / "missing.ply")
+    with pytest.raises(InputError, match="unknown point cloud format"):
+        read_cloud(tmp_path / "x.abc")
+    (tmp_path / "empty.ply").write_bytes(b"")
+    with pytest.raises(InputError, match="empty"):
+        read_cloud(tmp_path / "empty.ply")
+    (tmp_path / "bad.bin").write_bytes(b"123")
+    with pytest.raises(InputError, match="whole number of KITTI points"):
+        read_cloud(tmp_path / "bad.bin")
+    (tmp_path / "bad.ply").write_text("not a ply file")
+    with pytest.raises(InputError):
+        read_cloud(tmp_path / "bad.ply")
+
+
+def test_las_reads_classification(shared_data):
+    cloud = read_cloud(shared_data / "las" / "warsaw_small.las")
+    assert cloud.point.positions.dtype == o3d.core.float64
+    assert "classification" in cloud.point
+    assert (cloud.point.classification.numpy() == 2).any()
+
+
+def test_as_frame_accepts_all_cloud_kinds_and_never_modifies(rng):
+    pts = rng.normal(size=(10, 3))
+    legacy = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    tensor = o3d.t.geometry.PointCloud(o3d.core.Tensor(pts.astype(np.float32)))
+    for data in (pts, legacy, tensor, np.column_stack([pts, np.ones(10)])):
+        frame = as_frame(data).with_attributes(labels=np.ones(10, np.int32))
+        np.testing.assert_allclose(frame.positions, pts, atol=1e-6)
+    assert "labels" not in tensor.point
+    assert tensor.point.positions.dtype == o3d.core.float32

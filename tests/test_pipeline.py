@@ -1,0 +1,83 @@
+import numpy as np
+import pytest
+import yaml
+
+from o3d_terrain import ConfigError, GridQuantize, Pipeline, load_pipeline, parse_pipeline
+from o3d_terrain.pipeline import RESOLVED_NAME, apply_overrides
+
+
+def _write(path, config):
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+@pytest.fixture
+def cloud_file(tmp_path, small_cloud):
+    path = tmp_path / "data" / "cloud.npy"
+    path.parent.mkdir()
+    np.save(path, small_cloud)
+    return path
+
+
+def test_relative_paths_resolve_against_the_file(tmp_path, cloud_file):
+    pipe = _write(tmp_path / "p.yaml", {
+        "source": {"type": "ReadCloud", "path": "data/cloud.npy"},
+        "stages": [{"type": "GridQuantize", "cell_size": 1.0}],
+        "outputs": [{"type": "WriteImage", "product": "grid", "path": "h.png"}],
+    })
+    pipeline = load_pipeline(pipe)
+    assert pipeline.source.path == str(cloud_file)
+    result = pipeline.run(output_dir=tmp_path / "out")
+    names = sorted(p.name for p in result.written)
+    assert names == sorted(["h.png", RESOLVED_NAME])
+    resolved = yaml.safe_load((tmp_path / "out" / RESOLVED_NAME).read_text())
+    assert resolved["stages"][0] == GridQuantize(cell_size=1.0).to_config()
+
+
+def test_every_problem_reported_at_once(tmp_path):
+    pipe = _write(tmp_path / "p.yaml", {
+        "source": {"type": "ReadCloud", "path": "nowhere.ply"},
+        "stages": [{"type": "GridQuantise"}, {"type": "GridQuantize", "cel_size": 1, "min_points": 0}],
+        "outputs": [{"type": "WriteImage", "product": "surfce"}],
+        "stagse": [],
+    })
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(pipe)
+    text = str(info.value)
+    assert "unknown key 'stagse' (did you mean 'stages'?)" in text
+    assert "input file 'nowhere.ply' not found" in text
+    assert "stages[0] GridQuantise: unknown stage 'GridQuantise' (did you mean 'GridQuantize'?)" in text
+    assert "stages[1] GridQuantize: unknown option 'cel_size' (did you mean 'cell_size'?)" in text
+    assert "The 'min_points' option of GridQuantize must be an int >= 1. Got 0." in text
+
+
+def test_product_chain_checked_before_running():
+    with pytest.raises(ConfigError, match="writes the product 'surface', which no stage makes"):
+        parse_pipeline({"stages": [{"type": "GridQuantize"}],
+                        "outputs": [{"type": "WriteProduct", "product": "surface"}]})
+
+
+def test_malformed_yaml_reports_line(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("stages:\n  - type: GridQuantize\n   cell_size: [1\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml:\d+:\d+: invalid YAML"):
+        load_pipeline(path)
+
+
+def test_overrides():
+    config = {"stages": [{"type": "GridQuantize", "cell_size": 0.5}]}
+    out = apply_overrides(config, ["stages.0.cell_size=0.25", "stages.0.region=[0, 1, 0, 1]"])
+    assert out["stages"][0]["cell_size"] == 0.25 and out["stages"][0]["region"] == [0, 1, 0, 1]
+    assert config["stages"][0]["cell_size"] == 0.5  # the original is not modified
+    with pytest.raises(ConfigError, match="does not name an option"):
+        apply_overrides(config, ["stages.5.cell_size=1"])
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        apply_overrides(config, ["stages.0.cell_size"])
+
+
+def test_python_form_equals_file_form(tmp_path, cloud_file, small_cloud):
+    pipe = _write(tmp_path / "p.yaml", {"stages": [{"type": "GridQuantize", "cell_size": 0.8}]})
+    from_file = load_pipeline(pipe, input_path=cloud_file).run()
+    in_python = Pipeline((GridQuantize(cell_size=0.8),)).run(small_cloud)
+    np.testing.assert_array_equal(from_file.frame.products["grid"].z,
+                                  in_python.frame.products["grid"].z)
