@@ -36,7 +36,7 @@ $(STAMP): pyproject.toml
 venv: syslibs $(STAMP)
 
 demo: venv
-	$(VENV)/bin/o3d-terrain demo --output out
+	$(VENV)/bin/o3d-terrain run pipelines/demo.yaml --output out/demo
 
 test: venv
 	$(PY) -m pytest -q
