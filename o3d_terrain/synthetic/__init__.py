@@ -13,11 +13,13 @@ from .scene import (OBSTACLE_SHAPES, SCENES, Obstacle, Scene, default_obstacles,
 from .sensors import (OBSTACLE, SENSOR_FROM_OPTICAL, TERRAIN, Camera, SyntheticCloud,
                       TerrainError, cast, rotation_matrix, sample_lidar, sample_stereo,
                       sensor_pose, terrain_rmse)
+from .render import StereoPair, render_stereo_pair, texture, value_noise
 from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
     "SCENES", "OBSTACLE_SHAPES", "Obstacle", "Scene", "make_scene", "section6_scene",
     "default_obstacles", "SyntheticCloud", "TerrainError", "Camera", "sample_lidar",
     "sample_stereo", "terrain_rmse", "sensor_pose", "rotation_matrix", "cast", "TERRAIN",
-    "OBSTACLE", "SENSOR_FROM_OPTICAL", "Plane", "Hill", "Ridge", "Ramp", "Valley", "Roughness",
+    "OBSTACLE", "SENSOR_FROM_OPTICAL", "StereoPair", "render_stereo_pair", "texture", "value_noise",
+    "Plane", "Hill", "Ridge", "Ramp", "Valley", "Roughness",
 ]

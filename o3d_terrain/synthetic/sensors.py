@@ -265,6 +265,10 @@ class SyntheticCloud:
         residual = np.abs(p[..., 2] - self.scene.height(p[..., 0], p[..., 1]))
         return np.where(residual < 1e-6, z, np.nan)
 
+    def terrain_height(self, x, y) -> np.ndarray:
+        """Same as :meth:`terrain_height_in_sensor_frame` (the exact terrain in this cloud's frame)."""
+        return self.terrain_height_in_sensor_frame(x, y)
+
     def terrain_truth_samples(self, spacing: float = 0.5, region=None) -> np.ndarray:
         """Exact terrain points (M, 3) in the sensor frame on a sensor-frame (x, y) grid.
 
