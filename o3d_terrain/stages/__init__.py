@@ -4,6 +4,8 @@ from .base import STAGES, SourceStage, Stage, stage
 from .grid_quantize import GridQuantize
 from .read import ReadCloud
 from .synthetic import SyntheticScene
+from .stereo import StereoToCloud
 
 __all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize", "ReadCloud"]
 __all__ += ["SyntheticScene"]
+__all__ += ["StereoToCloud"]

@@ -4,11 +4,12 @@ Public functions: :func:`load_calibration`, :func:`compute_disparity`, :func:`st
 """
 
 from .calibration import StereoCalibration, load_calibration
-from .cloud import StereoCloud, camera_to_vehicle_matrix, disparity_to_points, stereo_to_cloud
+from .cloud import DisparityMap, StereoCloud, camera_to_vehicle_matrix, disparity_to_points, stereo_to_cloud
 from .disparity import StereoMatching, compute_disparity, fill_disparity_holes, read_image
 from .evaluation import disparity_errors, read_pfm
 
 __all__ = [
+    "DisparityMap",
     "StereoCalibration",
     "StereoCloud",
     "StereoMatching",

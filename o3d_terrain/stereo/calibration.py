@@ -248,10 +248,16 @@ def load_calibration(path: str | os.PathLike, *, cameras: tuple[str, str] | None
     """Read a stereo calibration file, recognising its format from its content.
 
     ``cameras`` picks the projection matrices of a KITTI file (default ``("P2", "P3")`` when
-    present, else ``("P0", "P1")``). A :class:`StereoCalibration` is returned unchanged.
+    present, else ``("P0", "P1")``). A :class:`StereoCalibration` is returned unchanged; a
+    mapping is read like a plain YAML calibration.
     """
     if isinstance(path, StereoCalibration):
         return path
+    if isinstance(path, Mapping):
+        return calibration_from_mapping(path, source="calibration mapping")
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"a calibration must be a file path, a mapping or a StereoCalibration, "
+                         f"got {type(path).__name__}")
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such calibration file; check the path (relative paths in a "

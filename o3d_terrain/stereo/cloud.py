@@ -10,6 +10,7 @@ The terrain fit itself makes no pose assumption; the vehicle frame only makes ma
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -21,10 +22,60 @@ from ..options import Range, component, option
 from .calibration import StereoCalibration
 from .disparity import SETTINGS, StereoMatch, StereoMatching
 
-__all__ = ["StereoCloud", "stereo_to_cloud", "disparity_to_points", "camera_to_vehicle_matrix"]
+__all__ = ["StereoCloud", "DisparityMap", "stereo_to_cloud", "disparity_to_points",
+           "camera_to_vehicle_matrix"]
 
 #: camera axes (x right, y down, z forward) expressed in vehicle axes (x forward, y left, z up)
 CAMERA_TO_VEHICLE_AXES = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+@dataclass(frozen=True, eq=False)
+class DisparityMap:
+    """The ``disparity`` product: a matched pair at the matching resolution.
+
+    ``values`` (H, W) float32 disparity in pixels, NaN where invalid; ``image`` the rectified
+    left image (RGB or grey uint8); ``calibration`` for these images; ``camera_to_output`` the
+    4 × 4 transform from the camera frame into the cloud's frame; ``disparity_range`` searched.
+    """
+
+    values: np.ndarray
+    image: np.ndarray
+    calibration: StereoCalibration
+    camera_to_output: np.ndarray
+    disparity_range: tuple[int, int]
+
+    @property
+    def valid(self) -> np.ndarray:
+        return np.isfinite(self.values)
+
+    @property
+    def depth(self) -> np.ndarray:
+        """Depth Z (m) per pixel along the optical axis, NaN where invalid."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = self.calibration.depth_from_disparity(self.values)
+        return np.where(np.isfinite(z) & (z > 0), z, np.nan)
+
+    def image_layers(self) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+        """Layers for image writers, in their ``[ix, iy]`` convention (x right, y up), so that
+        the drawing shows the camera image upright."""
+        def upright(values: np.ndarray) -> np.ndarray:
+            return np.flipud(values).T
+
+        grey = self.image if self.image.ndim == 2 else self.image.mean(axis=2)
+        return {
+            "disparity": (upright(self.values), upright(self.valid), "px"),
+            "depth": (upright(self.depth), upright(self.valid), "m"),
+            "image": (upright(grey.astype(np.float64)), np.ones(grey.T.shape, bool), ""),
+        }
+
+    def save(self, path: Any) -> None:
+        """Write an ``.npz`` with the disparity, depth, image and calibration numbers."""
+        c = self.calibration
+        np.savez_compressed(
+            path, kind="DisparityMap", disparity=self.values, depth=self.depth, image=self.image,
+            fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy, baseline=c.baseline, doffs=c.doffs,
+            camera_to_output=self.camera_to_output, disparity_range=np.array(self.disparity_range),
+        )
 
 
 def disparity_to_points(disparity: np.ndarray, calibration: StereoCalibration
@@ -134,10 +185,8 @@ class StereoCloud(StereoMatching):
                 np.repeat(image.ravel()[index][:, None], 3, axis=1)
             attributes["colors"] = pixels.astype(np.float32) * np.float32(1.0 / 255.0)
         cloud = cloud_from_numpy(points, **attributes)
-        frame = Frame(cloud).with_products(
-            disparity=match.disparity, left_image=match.left, stereo_calibration=calib,
-            camera_to_output=transform,
-        )
+        frame = Frame(cloud).with_products(disparity=DisparityMap(
+            match.disparity, match.left, calib, transform, match.disparity_range))
         valid_share = matched / float(h * w)
         frame = frame.with_note(
             f"stereo: {w} × {h} px matched over disparities {match.disparity_range[0]}.."
