@@ -136,8 +136,10 @@ def _run(args: argparse.Namespace, verbose: bool) -> int:
         result = pipeline.run(output_dir=output)
         _report(result, verbose)
         return EXIT_OK
-    # a batch: check once with the first input, then keep going past a bad one
-    load_pipeline(args.pipeline, overrides=args.overrides, input_path=inputs[0])
+    # a batch: check the configuration once, then keep going past a bad input
+    existing = [p for p in inputs if p.is_file()]
+    load_pipeline(args.pipeline, overrides=args.overrides,
+                  input_path=existing[0] if existing else inputs[0])
     failed = []
     for path in inputs:
         out = Path(args.output or "out") / path.stem

@@ -305,12 +305,7 @@ def load_pipeline(
     if not isinstance(config, dict):
         raise ConfigError(Problem(str(path), "must be a mapping with 'stages:'"))
     config = apply_overrides(config, overrides)
-    if input_path is not None:
-        source = config.get("source")
-        if isinstance(source, Mapping) and source.get("type") not in (None, "ReadCloud"):
-            raise ConfigError(Problem(
-                "--input", f"the pipeline's source is {source.get('type')}, not a cloud file",
-                "set the source's options with --set source.<option>=VALUE"))
+    if input_path is not None:  # a cloud file replaces whatever source the file names
         config["source"] = {"type": "ReadCloud", "path": str(Path(input_path).resolve())}
     try:
         return parse_pipeline(config, base_dir=path.parent.resolve())
