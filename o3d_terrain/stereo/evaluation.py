@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["read_pfm", "disparity_errors"]
+__all__ = ["read_pfm", "disparity_errors", "lidar_in_camera"]
 
 
 def read_pfm(path: str | os.PathLike) -> np.ndarray:
@@ -65,3 +65,25 @@ def disparity_errors(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray |
         "median_error": float(np.median(error[output])) if n_output else float("nan"),
         "mean_error": float(np.mean(error[output])) if n_output else float("nan"),
     }
+
+
+def lidar_in_camera(points: np.ndarray, lidar_to_camera: np.ndarray, camera_matrix: np.ndarray,
+                    width: int, height: int, *, min_depth: float = 0.5
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map lidar points into a camera frame and keep those the camera sees.
+
+    Returns ``(points in the camera frame (M, 3), columns (M,), rows (M,))`` (pixel
+    coordinates, float) for the points in front of the camera (depth >= ``min_depth``) that
+    project inside the ``width`` × ``height`` image.
+    """
+    points = np.asarray(points, dtype=np.float64)[:, :3]
+    transform = np.asarray(lidar_to_camera, dtype=np.float64)
+    camera = points @ transform[:3, :3].T + transform[:3, 3]
+    depth = camera[:, 2]
+    front = depth >= min_depth
+    camera = camera[front]
+    k = np.asarray(camera_matrix, dtype=np.float64)
+    u = k[0, 0] * camera[:, 0] / camera[:, 2] + k[0, 2]
+    v = k[1, 1] * camera[:, 1] / camera[:, 2] + k[1, 2]
+    inside = (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
+    return camera[inside], u[inside], v[inside]
