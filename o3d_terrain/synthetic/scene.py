@@ -182,7 +182,7 @@ class Scene:
         """
         x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
                                    np.asarray(y, dtype=np.float64))
-        z = self.height(x, y)
+        z = np.array(self.height(x, y), dtype=np.float64)
         for i, obstacle in enumerate(self.obstacles):
             inside = obstacle.contains(x, y)
             if not inside.any():

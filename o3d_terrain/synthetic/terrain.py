@@ -95,7 +95,8 @@ class Ramp:
     Along the heading, s = distance past (x0, y0): the height is 0 before s = 0, rises at
     ``tan(slope_deg)`` until s = ``length``, then stays at ``length·tan(slope_deg)``. The two
     kinks are rounded over about ``rounding`` metres (softplus), so away from the ends
-    (more than ~8·rounding) the slope equals ``slope_deg`` to better than 1e-3 degrees.
+    (more than 10·rounding, 2.5 m by default) the slope equals ``slope_deg`` to better than
+    1e-3 degrees.
     """
 
     x0: float
@@ -103,7 +104,7 @@ class Ramp:
     direction_deg: float
     slope_deg: float
     length: float
-    rounding: float = 0.5
+    rounding: float = 0.25
 
     def _along(self, x, y):
         a = math.radians(self.direction_deg)

@@ -1,0 +1,369 @@
+"""Synthetic scenes: exact truth, sensor geometry, noise models and the rendered stereo pair."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from o3d_terrain.errors import ConfigError, InputError
+from o3d_terrain.synthetic import (SCENES, Obstacle, make_scene, render_stereo_pair,
+                                   rotation_matrix, sample_lidar, sample_stereo, section6_scene,
+                                   terrain_rmse)
+
+
+def _random_xy(scene, count=400, seed=1):
+    rng = np.random.default_rng(seed)
+    x_min, x_max, y_min, y_max = scene.region
+    return rng.uniform(x_min, x_max, count), rng.uniform(y_min, y_max, count)
+
+
+@pytest.fixture(scope="module")
+def offroad():
+    return make_scene("offroad", seed=0)
+
+
+@pytest.fixture(scope="module")
+def offroad_lidar(offroad):
+    return sample_lidar(offroad, tilt_deg=(5.0, 3.0))
+
+
+# -- the exact terrain ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_gradient_equals_central_differences(name):
+    scene = make_scene(name, seed=3)
+    x, y = _random_xy(scene)
+    h = 1e-5
+    gx, gy = scene.gradient(x, y)
+    fx = (scene.height(x + h, y) - scene.height(x - h, y)) / (2 * h)
+    fy = (scene.height(x, y + h) - scene.height(x, y - h)) / (2 * h)
+    np.testing.assert_allclose(gx, fx, atol=1e-6)
+    np.testing.assert_allclose(gy, fy, atol=1e-6)
+    np.testing.assert_allclose(scene.slope_deg(x, y), np.degrees(np.arctan(np.hypot(fx, fy))),
+                               atol=1e-4)
+
+
+def test_heights_are_vectorised_over_any_shape(offroad):
+    x, y = np.meshgrid(np.linspace(0, 10, 4), np.linspace(-3, 3, 5))
+    z = offroad.height(x, y)
+    assert z.shape == x.shape
+    assert z[2, 3] == pytest.approx(float(offroad.height(x[2, 3], y[2, 3])))
+
+
+def test_ramp_is_ten_degrees_between_two_flats():
+    scene = make_scene("ramp")
+    y = np.linspace(-10, 10, 7)
+    for x in (12.0, 14.0, 16.0):  # well inside the ramp (x from 8 to 20)
+        np.testing.assert_allclose(scene.slope_deg(np.full_like(y, x), y), 10.0, atol=1e-3)
+    for x in (-2.0, 30.0):
+        np.testing.assert_allclose(scene.slope_deg(np.full_like(y, x), y), 0.0, atol=1e-3)
+    rise = scene.height(30.0, 0.0) - scene.height(0.0, 0.0)
+    assert rise == pytest.approx(12.0 * math.tan(math.radians(10.0)), abs=1e-6)
+
+
+def test_ditch_is_below_and_berm_above_the_surrounding_ground():
+    scene = make_scene("ditch_berm")
+    assert scene.height(12.0, -5.0) < scene.height(6.0, -5.0) - 0.6
+    assert scene.height(5.0, 6.0) > scene.height(5.0, 0.0) + 0.8
+
+
+def test_seed_gives_the_same_scene_and_another_seed_another_one():
+    a, b, c = make_scene("mounds", seed=4), make_scene("mounds", seed=4), make_scene("mounds", seed=5)
+    x, y = _random_xy(a)
+    np.testing.assert_array_equal(a.height(x, y), b.height(x, y))
+    assert not np.allclose(a.height(x, y), c.height(x, y))
+
+
+def test_unknown_scene_and_bad_obstacle_are_clear_errors():
+    with pytest.raises(InputError, match="did you mean 'offroad'"):
+        make_scene("ofroad")
+    with pytest.raises(InputError, match="kind"):
+        Obstacle("tree", (0, 0), (1, 1), 1.0)
+    with pytest.raises(InputError, match="positive size and height"):
+        Obstacle("car", (0, 0), (4, 2), -1.0)
+    with pytest.raises(InputError, match="obstacle_height"):
+        section6_scene(obstacle_height=0.0)
+
+
+def test_obstacles_move_with_their_velocity():
+    scene = make_scene("flat").with_obstacles(
+        [Obstacle("pedestrian", (10.0, 0.0), (0.5, 0.5), 1.75, velocity=(0.0, 1.5))])
+    later = scene.at_time(2.0)
+    assert later.obstacles[0].center == pytest.approx((10.0, 3.0))
+    assert later.time == 2.0
+    assert scene.obstacles[0].center == (10.0, 0.0)
+
+
+def test_surface_height_is_the_obstacle_top_inside_a_box(offroad):
+    car = [i for i, o in enumerate(offroad.obstacles) if o.kind == "car"][0]
+    cx, cy = offroad.obstacles[car].center
+    assert offroad.surface_height(cx, cy) == pytest.approx(offroad.obstacle_top(car))
+    assert offroad.obstacle_at(cx, cy) == car
+    assert offroad.obstacle_at(-3.0, 0.0) == -1
+
+
+def test_mesh_holds_terrain_and_obstacles(offroad):
+    mesh = offroad.mesh()
+    vertices = mesh.vertex.positions.numpy()
+    assert vertices.dtype == np.float64
+    assert len(mesh.triangle.indices) > 1000
+    truck = [i for i, o in enumerate(offroad.obstacles) if o.kind == "truck"][0]
+    assert vertices[:, 2].max() == pytest.approx(offroad.obstacle_top(truck))
+
+
+# -- lidar ------------------------------------------------------------------------------------
+
+
+def test_noise_free_terrain_points_lie_exactly_on_the_terrain(offroad, offroad_lidar):
+    cloud = offroad_lidar
+    world = cloud.to_world(cloud.true_positions)
+    above = world[:, 2] - offroad.height(world[:, 0], world[:, 1])
+    assert np.abs(above[~cloud.is_obstacle]).max() < 1e-6
+    # and the exact terrain in the sensor frame agrees with them
+    terrain = cloud.true_positions[~cloud.is_obstacle]
+    z = cloud.terrain_height_in_sensor_frame(terrain[:, 0], terrain[:, 1])
+    np.testing.assert_allclose(z, terrain[:, 2], atol=1e-6)
+
+
+def test_range_noise_is_along_the_beam_with_the_requested_spread(offroad):
+    cloud = sample_lidar(offroad, range_noise=0.05, seed=2)
+    measured = np.linalg.norm(cloud.positions, axis=1)
+    true = np.linalg.norm(cloud.true_positions, axis=1)
+    assert np.std(measured - true) == pytest.approx(0.05, rel=0.05)
+    cross = np.cross(cloud.positions, cloud.true_positions)
+    assert np.abs(cross).max() / true.max() < 1e-9  # same ray
+
+
+def test_obstacle_points_stand_above_the_terrain_inside_their_footprints(offroad, offroad_lidar):
+    cloud = offroad_lidar
+    world = cloud.to_world(cloud.true_positions)
+    above = world[:, 2] - offroad.height(world[:, 0], world[:, 1])
+    seen = set(np.unique(cloud.obstacle_id[cloud.is_obstacle]))
+    assert {o.kind for i, o in enumerate(offroad.obstacles) if i in seen} >= {"car", "truck", "pole"}
+    for i in seen:
+        obstacle = offroad.obstacles[i]
+        mine = cloud.obstacle_id == i
+        assert obstacle.contains(world[mine, 0], world[mine, 1], margin=0.02).all()
+        assert world[mine, 2].max() <= offroad.obstacle_top(i) + 1e-3
+        assert (above[mine] > -0.02).all()  # nothing seen below the ground
+    car = [i for i, o in enumerate(offroad.obstacles) if o.kind == "car"][0]
+    # the sensor (1.8 m) sees the roof of the 1.5 m car
+    assert world[cloud.obstacle_id == car, 2].max() == pytest.approx(offroad.obstacle_top(car), abs=1e-3)
+    np.testing.assert_allclose(cloud.true_height_above_terrain[~cloud.is_obstacle], 0.0, atol=0.2)
+
+
+def test_tilt_tilts_the_ground_in_the_sensor_frame():
+    scene = make_scene("flat")
+    for roll, pitch in ((0.0, 0.0), (5.0, 3.0), (-4.0, -6.0)):
+        cloud = sample_lidar(scene, tilt_deg=(roll, pitch), range_noise=0.0, beams=16,
+                             azimuth_steps=360)
+        p = cloud.positions
+        centred = p - p.mean(axis=0)
+        normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+        normal *= np.sign(normal[2])
+        expected = rotation_matrix(roll_deg=roll, pitch_deg=pitch).T @ np.array([0.0, 0.0, 1.0])
+        np.testing.assert_allclose(normal, expected, atol=1e-9)
+        # the sensor stands 1.8 m above the ground along world z
+        assert cloud.world_from_sensor[2, 3] == pytest.approx(1.8)
+
+
+def test_pitch_down_makes_the_ground_ahead_rise_in_the_sensor_frame():
+    cloud = sample_lidar(make_scene("flat"), tilt_deg=(0.0, 5.0), range_noise=0.0)
+    ahead = cloud.positions[(cloud.positions[:, 0] > 10) & (np.abs(cloud.positions[:, 1]) < 2)]
+    behind = cloud.positions[(cloud.positions[:, 0] < -3) & (np.abs(cloud.positions[:, 1]) < 2)]
+    assert ahead[:, 2].mean() > behind[:, 2].mean() + 0.5
+
+
+def test_tall_obstacle_casts_an_occlusion_shadow():
+    tall = section6_scene(obstacle_height=3.0, obstacle_width=2.0)
+    bare = tall.without_obstacles()
+
+    def count(cloud, y_low, y_high):
+        p = cloud.to_world(cloud.positions)
+        terrain = ~cloud.is_obstacle
+        return int(((p[:, 0] > 13) & (p[:, 0] < 20) & (p[:, 1] > y_low) & (p[:, 1] < y_high)
+                    & terrain).sum())
+
+    with_box = sample_lidar(tall, beams=64, azimuth_steps=1800)
+    without = sample_lidar(bare, beams=64, azimuth_steps=1800)
+    assert count(without, -0.5, 0.5) > 20  # there is ground there to see
+    assert count(with_box, -0.5, 0.5) == 0  # but the box hides it
+    assert count(with_box, 4.0, 6.0) == count(without, 4.0, 6.0)  # beside the shadow: unchanged
+
+
+def test_lidar_seed_determinism(offroad):
+    a = sample_lidar(offroad, seed=7)
+    b = sample_lidar(offroad, seed=7)
+    c = sample_lidar(offroad, seed=8)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.obstacle_id, b.obstacle_id)
+    assert not np.array_equal(a.positions, c.positions)
+
+
+def test_bad_sensor_options_are_clear_errors(offroad):
+    with pytest.raises(InputError, match="beams"):
+        sample_lidar(offroad, beams=0)
+    with pytest.raises(InputError, match="tilt_deg"):
+        sample_lidar(offroad, tilt_deg=(float("nan"), 0.0))
+    with pytest.raises(InputError, match="baseline"):
+        sample_stereo(offroad, baseline=-0.3)
+
+
+def test_to_pointcloud_carries_the_truth(offroad_lidar):
+    cloud = offroad_lidar.to_pointcloud()
+    n = len(offroad_lidar)
+    assert cloud.point.positions.numpy().dtype == np.float64
+    truth = cloud.point["ground_truth"].numpy()
+    ids = cloud.point["obstacle_ids"].numpy()
+    assert truth.shape == (n, 1) and ids.shape == (n, 1)
+    np.testing.assert_array_equal(truth[:, 0] == 2, offroad_lidar.is_obstacle)
+    np.testing.assert_array_equal(ids[:, 0], offroad_lidar.obstacle_id)
+
+
+# -- evaluation helper ------------------------------------------------------------------------
+
+
+def test_terrain_rmse_is_zero_for_the_exact_surface_and_the_offset_otherwise(offroad_lidar):
+    exact = terrain_rmse(offroad_lidar.terrain_height, offroad_lidar)
+    assert exact.rmse < 1e-6 and exact.samples > 100
+    shifted = terrain_rmse(lambda x, y: offroad_lidar.terrain_height(x, y) + 0.1, offroad_lidar)
+    assert shifted.rmse == pytest.approx(0.1) and shifted.bias == pytest.approx(0.1)
+    # the world height is not the sensor-frame terrain of a raised, tilted sensor
+    world = terrain_rmse(offroad_lidar.scene.height, offroad_lidar)
+    assert world.rmse > 1.0
+
+
+def test_terrain_truth_samples_lie_on_the_terrain(offroad_lidar):
+    samples = offroad_lidar.terrain_truth_samples(spacing=1.0)
+    world = offroad_lidar.to_world(samples)
+    np.testing.assert_allclose(world[:, 2], offroad_lidar.scene.height(world[:, 0], world[:, 1]),
+                               atol=1e-6)
+
+
+# -- stereo-like cloud ------------------------------------------------------------------------
+
+
+def test_stereo_noise_is_along_the_ray_and_grows_with_range_squared(offroad):
+    focal, baseline, sigma = 256.0, 0.3, 0.25
+    cloud = sample_stereo(offroad, width=320, height=240, focal_px=focal, baseline=baseline,
+                          disparity_noise_px=sigma, seed=1)
+    depth = cloud.true_positions[:, 0]  # forward component = depth along the optical axis
+    error = cloud.positions[:, 0] - depth
+    cross = np.cross(cloud.positions, cloud.true_positions)
+    assert np.abs(cross).max() / depth.max() < 1e-9
+    spreads = []
+    for low, high in ((4.0, 6.0), (12.0, 15.0), (20.0, 25.0)):
+        band = (depth > low) & (depth < high)
+        assert band.sum() > 500
+        z = np.sqrt(np.mean(depth[band] ** 2))
+        spreads.append(np.std(error[band]))
+        # first-order propagation: sigma_Z = Z² sigma_d / (f B)
+        assert spreads[-1] == pytest.approx(z**2 * sigma / (focal * baseline), rel=0.15)
+    assert spreads[0] < spreads[1] < spreads[2]
+
+
+def test_stereo_cloud_sees_obstacles_and_exact_terrain(offroad):
+    cloud = sample_stereo(offroad, disparity_noise_px=0.0)
+    assert cloud.is_obstacle.any()
+    world = cloud.to_world(cloud.positions)
+    above = world[:, 2] - offroad.height(world[:, 0], world[:, 1])
+    assert np.abs(above[~cloud.is_obstacle]).max() < 1e-6
+
+
+# -- rendered stereo pair ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def pair(offroad):
+    return render_stereo_pair(offroad, width=192, height=144, baseline=0.3, seed=0)
+
+
+def test_right_image_is_the_left_shifted_by_the_true_disparity(pair):
+    left = pair.left.astype(np.float64)
+    right = pair.right.astype(np.float64)
+    h, w = left.shape
+    v, u = np.nonzero(np.isfinite(pair.depth))
+    d = pair.disparity[v, u]
+    # textured pixels away from depth edges, whose match stays inside the right image
+    gradient = np.abs(np.gradient(left, axis=1))[v, u]
+    depth = pair.depth
+    smooth = np.ones_like(depth, dtype=bool)
+    with np.errstate(invalid="ignore"):  # inf - inf next to the sky
+        smooth[:, 1:-1] = np.abs(depth[:, 2:] - depth[:, :-2]) < 0.05 * depth[:, 1:-1]
+    keep = (gradient > 4) & smooth[v, u] & (u - d > 2) & (u < w - 2)
+    v, u, d = v[keep], u[keep], d[keep]
+    assert len(v) > 1000
+
+    def difference(shift):
+        x = u - shift
+        x0 = np.floor(x).astype(int)
+        a = x - x0
+        sampled = (1 - a) * right[v, x0] + a * right[v, np.minimum(x0 + 1, w - 1)]
+        return np.median(np.abs(sampled - left[v, u]))
+
+    true = difference(d)
+    assert true < 8.0
+    assert difference(d + 3.0) > 2 * true
+    assert difference(d - 3.0) > 2 * true
+
+
+def test_pair_calibration_and_truth_are_consistent(pair, offroad):
+    cal = pair.calibration
+    assert {"fx", "fy", "cx", "cy", "baseline", "width", "height"} <= set(cal)
+    assert pair.left.shape == (cal["height"], cal["width"]) and pair.left.dtype == np.uint8
+    sky = ~np.isfinite(pair.depth)
+    assert sky.any() and (pair.disparity[sky] == 0).all() and (pair.obstacle_ids[sky] == -2).all()
+    seen = np.isfinite(pair.depth)
+    np.testing.assert_allclose(pair.disparity[seen] * pair.depth[seen], cal["fx"] * cal["baseline"])
+    cloud = pair.true_cloud()
+    world = cloud.to_world(cloud.positions)
+    above = world[:, 2] - offroad.height(world[:, 0], world[:, 1])
+    assert np.abs(above[~cloud.is_obstacle]).max() < 1e-5
+    baseline = np.linalg.norm(pair.world_from_right[:3, 3] - pair.world_from_left[:3, 3])
+    assert baseline == pytest.approx(cal["baseline"])
+
+
+def test_pair_write(tmp_path, pair):
+    import cv2
+    import yaml
+
+    paths = pair.write(tmp_path)
+    np.testing.assert_array_equal(cv2.imread(str(paths["left.png"]), cv2.IMREAD_GRAYSCALE), pair.left)
+    assert yaml.safe_load(paths["calibration.yaml"].read_text())["baseline"] == pytest.approx(0.3)
+    np.testing.assert_array_equal(np.load(paths["disparity.npy"]), pair.disparity)
+
+
+# -- the source stage -------------------------------------------------------------------------
+
+
+def test_source_stage_makes_a_frame_with_truth():
+    from o3d_terrain.stages import STAGES, SyntheticScene
+
+    assert STAGES["SyntheticScene"] is SyntheticScene
+    stage = SyntheticScene(scene="section6", tilt_deg=[5, 3], beams=16, azimuth_steps=360)
+    frame = stage()
+    assert len(frame) > 500
+    assert set(SyntheticScene.writes_attributes) <= set(frame.attribute_names())
+    assert set(SyntheticScene.writes) <= set(frame.products)
+    assert frame.product("truth").name == "section6"
+    truth = frame.product("sensor_truth")
+    np.testing.assert_array_equal(frame.positions, truth.positions)
+    assert (frame.attribute("ground_truth") == 2).sum() == truth.is_obstacle.sum()
+    again = SyntheticScene.from_config({"type": "SyntheticScene", "scene": "section6",
+                                        "tilt_deg": [5, 3], "beams": 16,
+                                        "azimuth_steps": 360})()
+    np.testing.assert_array_equal(frame.positions, again.positions)
+    stereo = SyntheticScene(scene="flat", sensor="stereo", image_size=[64, 48])()
+    assert len(stereo) > 500
+
+
+def test_source_stage_rejects_bad_options():
+    from o3d_terrain.stages import SyntheticScene
+
+    with pytest.raises(ConfigError, match="did you mean 'offroad'"):
+        SyntheticScene(scene="ofroad")
+    with pytest.raises(ConfigError, match="sensor"):
+        SyntheticScene(sensor="radar")
