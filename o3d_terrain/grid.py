@@ -33,6 +33,8 @@ class HeightGrid:
     count: np.ndarray  # (nx, ny) int64 points per cell
     state: np.ndarray  # (nx, ny) uint8: INVALID 0, MEASURED 1, FILLED 2
     lowest: np.ndarray | None = None  # (nx, ny) lowest z per cell (inf where empty)
+    skipped_nonfinite: int = 0  # points skipped for a NaN or infinite coordinate
+    skipped_outside: int = 0  # finite points outside the grid's region
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -65,7 +67,7 @@ class HeightGrid:
         return self.state != INVALID
 
     def cell_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Flat cell index (ix * ny + iy) of each point; -1 outside the grid or non-finite."""
+        """Flat cell index (ix * ny + iy) of each point; -1 outside the grid, -2 non-finite."""
         return _grid.cell_indices(
             np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
             self.x_min, self.y_min, self.cell_size, self.nx, self.ny,
@@ -136,5 +138,8 @@ def quantize_points(
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
     cells = _grid.cell_indices(x, y, x_min, y_min, cell_size, nx, ny)
-    height, count, state, lowest = _grid.quantize(cells, z, nx, ny, min_points, fill_empty)
-    return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest)
+    height, count, state, lowest, nonfinite, outside = _grid.quantize(
+        cells, z, nx, ny, min_points, fill_empty
+    )
+    return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
+                      int(nonfinite), int(outside))

@@ -14,7 +14,7 @@ FILLED = 2
 
 @numba.njit(cache=True)
 def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
-    """Flat cell index (ix * ny + iy) of every point, -1 outside the grid or non-finite.
+    """Flat cell index (ix * ny + iy) of every point; -1 outside the grid, -2 non-finite x or y.
 
     A point on the far edge of the grid (x == x_min + nx * cell_size) goes to the last cell.
     """
@@ -24,7 +24,7 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
         fx = (x[k] - x_min) / cell_size
         fy = (y[k] - y_min) / cell_size
         if not (math.isfinite(fx) and math.isfinite(fy)):
-            out[k] = -1
+            out[k] = -2
             continue
         ix = int(math.floor(fx))
         iy = int(math.floor(fy))
@@ -43,7 +43,8 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
 def quantize(cells, z, nx, ny, min_points, fill_empty):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts and state.
 
-    ``cells`` from :func:`cell_indices`; points with cell -1 or non-finite z are skipped.
+    ``cells`` from :func:`cell_indices`; points with a negative cell or non-finite z are skipped
+    and counted: the result ends with (number non-finite, number outside the grid).
     Cells with fewer than ``min_points`` points are empty. Empty cells take the mean of the
     8-neighbour *measured* cells (state FILLED) when ``fill_empty``; otherwise, or with no
     measured neighbour, they are INVALID with Z = 0. Sums are taken in point order (a plain
@@ -53,9 +54,15 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
     count = np.zeros(m, np.int64)
     total = np.zeros(m)
     lowest = np.full(m, np.inf)
+    nonfinite = 0
+    outside = 0
     for k in range(cells.shape[0]):
         c = cells[k]
-        if c < 0 or not math.isfinite(z[k]):
+        if c == -2 or not math.isfinite(z[k]):
+            nonfinite += 1
+            continue
+        if c < 0:
+            outside += 1
             continue
         count[c] += 1
         total[c] += z[k]
@@ -105,6 +112,8 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
         count.reshape(nx, ny),
         state.reshape(nx, ny),
         lowest.reshape(nx, ny),
+        nonfinite,
+        outside,
     )
 
 

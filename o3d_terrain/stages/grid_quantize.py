@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..frame import Frame
 from ..grid import quantize_points
 from ..options import POSITIVE, Range, option
@@ -42,17 +40,15 @@ class GridQuantize(Stage):
     )
 
     def run(self, frame: Frame) -> Frame:
-        positions = frame.positions
         grid = quantize_points(
-            positions, cell_size=self.cell_size, region=self.region,
+            frame.positions, cell_size=self.cell_size, region=self.region,
             min_points=self.min_points, fill_empty=self.fill_empty,
         )
         frame = frame.with_products(grid=grid)
-        finite = np.isfinite(positions).all(axis=1)
-        skipped = int((~finite).sum())
-        if skipped:
-            frame = frame.with_note(f"{self.type_name}: skipped {skipped} non-finite point(s)")
-        outside = int(finite.sum() - grid.count.sum())
-        if outside:
-            frame = frame.with_note(f"{self.type_name}: {outside} point(s) outside the region")
+        if grid.skipped_nonfinite:
+            frame = frame.with_note(
+                f"{self.type_name}: skipped {grid.skipped_nonfinite} non-finite point(s)")
+        if grid.skipped_outside:
+            frame = frame.with_note(
+                f"{self.type_name}: {grid.skipped_outside} point(s) outside the region")
         return frame
