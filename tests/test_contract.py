@@ -20,7 +20,23 @@ WRITER_NAMES = sorted(WRITERS)
 #: sources whose options name input files: how to make a valid instance in a temp folder
 SOURCE_FACTORIES = {
     "ReadCloud": lambda tmp, cloud: _npy(tmp, cloud),
+    "StereoToCloud": lambda tmp, cloud: _stereo_pair(tmp),
 }
+
+
+def _stereo_pair(tmp):
+    """A small rendered pair of a synthetic scene, its images and plain YAML calibration."""
+    import cv2
+    import yaml
+
+    from o3d_terrain.synthetic import make_scene, render_stereo_pair
+
+    pair = render_stereo_pair(make_scene("flat", seed=0), width=160, height=120)
+    cv2.imwrite(str(tmp / "left.png"), pair.left)
+    cv2.imwrite(str(tmp / "right.png"), pair.right)
+    (tmp / "calib.yaml").write_text(yaml.safe_dump({k: float(v) for k, v in pair.calibration.items()}))
+    return {"left": str(tmp / "left.png"), "right": str(tmp / "right.png"),
+            "calibration": str(tmp / "calib.yaml")}
 
 
 def _npy(tmp, cloud):
