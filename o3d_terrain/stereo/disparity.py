@@ -41,6 +41,9 @@ MODES = {"sgbm": 0, "hh": 1, "sgbm_3way": 2, "hh4": 3}
 #: the disparity range when neither the options nor the calibration give one (full-size pixels)
 DEFAULT_MAX_DISPARITY = 128
 
+#: image width (px) on which the rectification check detects features (speed)
+CHECK_WIDTH = 320
+
 #: registry of the option holders in this package (not pipeline stages)
 SETTINGS: dict[str, type] = {}
 
@@ -328,12 +331,12 @@ def check_rectified(left: np.ndarray, right: np.ndarray, *, max_vertical_dispari
 
     a, b = grey(left), grey(right)
     scale = 1.0
-    if a.shape[1] > 800:  # features on a reduced copy: the check must stay cheap
-        scale = 800.0 / a.shape[1]
-        size = (800, max(8, round(a.shape[0] * scale)))
+    if a.shape[1] > CHECK_WIDTH:  # features on a reduced copy: the check must stay cheap
+        scale = CHECK_WIDTH / a.shape[1]
+        size = (CHECK_WIDTH, max(8, round(a.shape[0] * scale)))
         a = cv2.resize(a, size, interpolation=cv2.INTER_AREA)
         b = cv2.resize(b, size, interpolation=cv2.INTER_AREA)
-    orb = cv2.ORB_create(nfeatures=500)
+    orb = cv2.ORB_create(nfeatures=300)
     ka, da = orb.detectAndCompute(a, None)
     kb, db = orb.detectAndCompute(b, None)
     if da is None or db is None or len(ka) < min_matches or len(kb) < min_matches:
