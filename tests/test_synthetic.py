@@ -8,9 +8,18 @@ import numpy as np
 import pytest
 
 from o3d_terrain.errors import ConfigError, InputError
-from o3d_terrain.synthetic import (SCENES, Obstacle, make_scene, render_stereo_pair,
-                                   rotation_matrix, sample_lidar, sample_stereo, section6_scene,
-                                   terrain_rmse)
+from o3d_terrain.synthetic import (
+    SCENES,
+    Obstacle,
+    make_scene,
+    render_stereo_pair,
+    rotation_matrix,
+    sample_lidar,
+    sample_sequence,
+    sample_stereo,
+    section6_scene,
+    terrain_rmse,
+)
 
 
 def _random_xy(scene, count=400, seed=1):
@@ -98,7 +107,7 @@ def test_obstacles_move_with_their_velocity():
 
 
 def test_surface_height_is_the_obstacle_top_inside_a_box(offroad):
-    car = [i for i, o in enumerate(offroad.obstacles) if o.kind == "car"][0]
+    car = next(i for i, o in enumerate(offroad.obstacles) if o.kind == "car")
     cx, cy = offroad.obstacles[car].center
     assert offroad.surface_height(cx, cy) == pytest.approx(offroad.obstacle_top(car))
     assert offroad.obstacle_at(cx, cy) == car
@@ -110,7 +119,7 @@ def test_mesh_holds_terrain_and_obstacles(offroad):
     vertices = mesh.vertex.positions.numpy()
     assert vertices.dtype == np.float64
     assert len(mesh.triangle.indices) > 1000
-    truck = [i for i, o in enumerate(offroad.obstacles) if o.kind == "truck"][0]
+    truck = next(i for i, o in enumerate(offroad.obstacles) if o.kind == "truck")
     assert vertices[:, 2].max() == pytest.approx(offroad.obstacle_top(truck))
 
 
@@ -149,7 +158,7 @@ def test_obstacle_points_stand_above_the_terrain_inside_their_footprints(offroad
         assert obstacle.contains(world[mine, 0], world[mine, 1], margin=0.02).all()
         assert world[mine, 2].max() <= offroad.obstacle_top(i) + 1e-3
         assert (above[mine] > -0.02).all()  # nothing seen below the ground
-    car = [i for i, o in enumerate(offroad.obstacles) if o.kind == "car"][0]
+    car = next(i for i, o in enumerate(offroad.obstacles) if o.kind == "car")
     # the sensor (1.8 m) sees the roof of the 1.5 m car
     assert world[cloud.obstacle_id == car, 2].max() == pytest.approx(offroad.obstacle_top(car), abs=1e-3)
     np.testing.assert_allclose(cloud.true_height_above_terrain[~cloud.is_obstacle], 0.0, atol=0.2)
@@ -284,7 +293,7 @@ def pair(offroad):
 def test_right_image_is_the_left_shifted_by_the_true_disparity(pair):
     left = pair.left.astype(np.float64)
     right = pair.right.astype(np.float64)
-    h, w = left.shape
+    _h, w = left.shape
     v, u = np.nonzero(np.isfinite(pair.depth))
     d = pair.disparity[v, u]
     # textured pixels away from depth edges, whose match stays inside the right image
@@ -367,3 +376,35 @@ def test_source_stage_rejects_bad_options():
         SyntheticScene(scene="ofroad")
     with pytest.raises(ConfigError, match="sensor"):
         SyntheticScene(sensor="radar")
+
+
+# -- sequences --------------------------------------------------------------------------------
+
+
+def test_sequence_moves_the_sensor_and_the_obstacles():
+    scene = make_scene("crossing", seed=0)
+    frames = sample_sequence(scene, frames=3, rate_hz=10.0, speed=5.0, beams=16,
+                             azimuth_steps=360)
+    assert [f.time for f in frames] == pytest.approx([0.0, 0.1, 0.2])
+    for k, frame in enumerate(frames):
+        assert frame.world_from_sensor[0, 3] == pytest.approx(0.5 * k)
+        for i, obstacle in enumerate(frame.scene.obstacles):
+            start = scene.obstacles[i]
+            expected = np.asarray(start.center) + np.asarray(start.velocity) * frame.time
+            assert obstacle.center == pytest.approx(tuple(expected))
+        world = frame.to_world(frame.true_positions)
+        for i in np.unique(frame.obstacle_id[frame.is_obstacle]):
+            mine = frame.obstacle_id == i
+            assert frame.scene.obstacles[i].contains(world[mine, 0], world[mine, 1],
+                                                     margin=0.02).all()
+
+
+def test_region_override_gives_a_larger_scene():
+    small = make_scene("offroad")
+    large = make_scene("offroad", region=(-40, 40, -40, 40))
+    x, y = _random_xy(small)
+    np.testing.assert_array_equal(small.height(x, y), large.height(x, y))
+    assert len(sample_lidar(large, beams=16, azimuth_steps=360)) > \
+        len(sample_lidar(small, beams=16, azimuth_steps=360))
+    with pytest.raises(InputError, match="x_max > x_min"):
+        make_scene("flat", region=(10, 0, 0, 10))

@@ -6,6 +6,7 @@ from ..frame import Frame
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..synthetic import SCENES, make_scene, sample_lidar, sample_stereo
 from .base import SourceStage, stage
+from .grid_quantize import check_region
 
 
 @stage
@@ -28,6 +29,11 @@ class SyntheticScene(SourceStage):
                               "noise from disparity noise (grows with range²)")
     seed: int = option(0, rule=Range(0, None), help="seed of the scene's random parts and of the noise")
     obstacles: bool = option(True, help="place the scene's obstacles (false: bare terrain)")
+    region: tuple = option(
+        None, kind=float, length=4, nullable=True, unit="m", check=check_region,
+        help="x_min, x_max, y_min, y_max of the scene (world); null = the scene's own "
+             "(40 m x 30 m; 26 m x 22 m for section6)",
+    )
     tilt_deg: tuple = option((0.0, 0.0), kind=float, length=2, unit="deg",
                              rule=Range(-45, 45),
                              help="sensor roll and pitch (pitch positive = nose down)")
@@ -46,7 +52,8 @@ class SyntheticScene(SourceStage):
     baseline: float = option(0.3, unit="m", rule=POSITIVE, help="stereo: camera baseline")
 
     def read(self) -> Frame:
-        scene = make_scene(self.scene, seed=self.seed, obstacles=self.obstacles)
+        scene = make_scene(self.scene, seed=self.seed, obstacles=self.obstacles,
+                           region=self.region)
         if self.sensor == "lidar":
             cloud = sample_lidar(scene, sensor_height=self.sensor_height, yaw_deg=self.yaw_deg,
                                  tilt_deg=self.tilt_deg, beams=self.beams,

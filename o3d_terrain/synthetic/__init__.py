@@ -8,18 +8,37 @@
 See docs/synthetic.md for the scenes, the sensor and noise models and evaluation.
 """
 
-from .scene import (OBSTACLE_SHAPES, SCENES, Obstacle, Scene, default_obstacles, make_scene,
-                    section6_scene)
-from .sensors import (OBSTACLE, SENSOR_FROM_OPTICAL, TERRAIN, Camera, SyntheticCloud,
-                      TerrainError, cast, rotation_matrix, sample_lidar, sample_stereo,
-                      sensor_pose, terrain_rmse)
 from .render import StereoPair, render_stereo_pair, texture, value_noise
+from .scene import (
+                    OBSTACLE_SHAPES,
+                    SCENES,
+                    Obstacle,
+                    Scene,
+                    default_obstacles,
+                    make_scene,
+                    section6_scene,
+)
+from .sensors import (
+                    OBSTACLE,
+                    SENSOR_FROM_OPTICAL,
+                    TERRAIN,
+                    Camera,
+                    SyntheticCloud,
+                    TerrainError,
+                    cast,
+                    rotation_matrix,
+                    sample_lidar,
+                    sample_sequence,
+                    sample_stereo,
+                    sensor_pose,
+                    terrain_rmse,
+)
 from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
-    "SCENES", "OBSTACLE_SHAPES", "Obstacle", "Scene", "make_scene", "section6_scene",
-    "default_obstacles", "SyntheticCloud", "TerrainError", "Camera", "sample_lidar",
-    "sample_stereo", "terrain_rmse", "sensor_pose", "rotation_matrix", "cast", "TERRAIN",
-    "OBSTACLE", "SENSOR_FROM_OPTICAL", "StereoPair", "render_stereo_pair", "texture", "value_noise",
-    "Plane", "Hill", "Ridge", "Ramp", "Valley", "Roughness",
+    "OBSTACLE", "OBSTACLE_SHAPES", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN", "Camera", "Hill",
+    "Obstacle", "Plane", "Ramp", "Ridge", "Roughness", "Scene", "StereoPair", "SyntheticCloud",
+    "TerrainError", "Valley", "cast", "default_obstacles", "make_scene", "render_stereo_pair",
+    "rotation_matrix", "sample_lidar", "sample_sequence", "sample_stereo", "section6_scene",
+    "sensor_pose", "terrain_rmse", "texture", "value_noise",
 ]

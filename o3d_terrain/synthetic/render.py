@@ -17,8 +17,15 @@ import numpy as np
 
 from ..errors import InputError
 from .scene import Scene
-from .sensors import (SENSOR_FROM_OPTICAL, Camera, SyntheticCloud, _check_non_negative,
-                      _check_positive, cast, sensor_pose)
+from .sensors import (
+    SENSOR_FROM_OPTICAL,
+    Camera,
+    SyntheticCloud,
+    _check_non_negative,
+    _check_positive,
+    cast,
+    sensor_pose,
+)
 
 #: texture octaves: lattice spacing (metres) of each value-noise layer
 _OCTAVES = (0.015, 0.03, 0.06, 0.12, 0.25, 0.5, 1.0, 2.0)

@@ -9,13 +9,13 @@ Sec. VI. Scenes are deterministic: the same name and seed give the same scene.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numpy as np
 import open3d as o3d
 
-from ..errors import InputError
+from ..errors import InputError, did_you_mean
 from .terrain import Feature, Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 #: the shape used to model each obstacle kind
@@ -69,7 +69,7 @@ class Obstacle:
     def shape(self) -> str:
         return OBSTACLE_SHAPES[self.kind]
 
-    def at_time(self, t: float) -> "Obstacle":
+    def at_time(self, t: float) -> Obstacle:
         """The obstacle after ``t`` seconds of motion at its velocity."""
         cx, cy = self.center
         vx, vy = self.velocity
@@ -197,14 +197,26 @@ class Scene:
         return z
 
     # -- variants ----------------------------------------------------------------------------
-    def without_obstacles(self) -> "Scene":
+    def without_obstacles(self) -> Scene:
         """The same terrain with no obstacle (the reference of Sec. VI comparisons)."""
         return replace(self, obstacles=(), _cache={})
 
-    def with_obstacles(self, obstacles: Sequence[Obstacle]) -> "Scene":
+    def with_obstacles(self, obstacles: Sequence[Obstacle]) -> Scene:
         return replace(self, obstacles=tuple(obstacles), _cache={})
 
-    def at_time(self, t: float) -> "Scene":
+    def with_region(self, region) -> Scene:
+        """The same scene over another (x_min, x_max, y_min, y_max) region, metres."""
+        try:
+            region = tuple(float(v) for v in region)
+        except (TypeError, ValueError):
+            raise InputError(f"region must be 4 numbers (x_min, x_max, y_min, y_max); got {region!r}") from None
+        if len(region) != 4 or not all(math.isfinite(v) for v in region) \
+                or not (region[1] > region[0] and region[3] > region[2]):
+            raise InputError("region must be 4 finite numbers with x_max > x_min and "
+                             f"y_max > y_min; got {region!r}")
+        return replace(self, region=region, _cache={})
+
+    def at_time(self, t: float) -> Scene:
         """The scene ``t`` seconds later: every obstacle moved by its velocity."""
         return replace(self, obstacles=tuple(o.at_time(t) for o in self.obstacles),
                        time=self.time + t, _cache={})
@@ -213,8 +225,8 @@ class Scene:
     def terrain_mesh_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Vertices (V, 3) float64 and triangles (T, 3) int of the terrain over the region."""
         x_min, x_max, y_min, y_max = self.region
-        nx = max(2, int(math.ceil((x_max - x_min) / self.mesh_spacing)) + 1)
-        ny = max(2, int(math.ceil((y_max - y_min) / self.mesh_spacing)) + 1)
+        nx = max(2, math.ceil((x_max - x_min) / self.mesh_spacing) + 1)
+        ny = max(2, math.ceil((y_max - y_min) / self.mesh_spacing) + 1)
         xs = np.linspace(x_min, x_max, nx)
         ys = np.linspace(y_min, y_max, ny)
         gx, gy = np.meshgrid(xs, ys, indexing="ij")
@@ -332,7 +344,7 @@ def _ellipsoid(obstacle: Obstacle, ground: float, segments: int) -> tuple[np.nda
 
 def _obstacle_set(rng: np.random.Generator) -> tuple[Obstacle, ...]:
     """One obstacle of every kind ahead of the sensor (positions fixed, small seeded jitter)."""
-    j = lambda: float(rng.uniform(-0.3, 0.3))  # noqa: E731
+    j = lambda: float(rng.uniform(-0.3, 0.3))
     return (
         Obstacle("pole", (8.0 + j(), 4.0 + j()), (0.2, 0.2), 3.0),
         Obstacle("pedestrian", (10.0 + j(), -2.5 + j()), (0.5, 0.5), 1.75),
@@ -399,6 +411,22 @@ def _offroad(rng):
     return features, _obstacle_set(rng)
 
 
+def _crossing(rng):
+    """Moving obstacles for sequences: a pedestrian crossing, a car coming, a truck leaving."""
+    features = (Plane(slope_x=0.01), Hill(26.0, 10.0, 1.5, 4.0, 3.0),
+                Roughness.random(rng, amplitude=0.02))
+    j = lambda: float(rng.uniform(-0.3, 0.3))
+    obstacles = (
+        Obstacle("pedestrian", (12.0 + j(), -6.0 + j()), (0.5, 0.5), 1.75, velocity=(0.0, 1.4)),
+        Obstacle("car", (30.0 + j(), 3.0 + j()), (4.5, 1.8), 1.5, yaw_deg=180.0,
+                 velocity=(-6.0, 0.0)),
+        Obstacle("truck", (20.0 + j(), -3.0 + j()), (8.0, 2.5), 3.5, velocity=(4.0, 0.0)),
+        Obstacle("pole", (9.0, 5.0), (0.2, 0.2), 3.0),
+        Obstacle("rock", (16.0, 4.0), (1.2, 1.0), 0.6),
+    )
+    return features, obstacles
+
+
 _BUILDERS = {
     "flat": _flat,
     "hills": _hills,
@@ -407,6 +435,7 @@ _BUILDERS = {
     "valley": _valley,
     "mounds": _gravel_mounds,
     "offroad": _offroad,
+    "crossing": _crossing,
 }
 
 #: the named scenes and what they hold
@@ -419,30 +448,39 @@ SCENES: dict[str, str] = {
     "mounds": "eight gravel mounds 0.4-1.0 m high on flat ground (seeded positions)",
     "offroad": "a track between a ditch and a berm, a hill, a 6° ramp, gravel mounds; "
                "a pole, a pedestrian, a car, a rock and a truck",
+    "crossing": "gentle slope and a hill; a pedestrian crossing (1.4 m/s), an oncoming car "
+                "(6 m/s), a truck driving away (4 m/s), a static pole and rock (for sequences)",
     "section6": "the paper's Sec. VI: flat road, one box at (11, 0); 22 m x 22 m",
 }
 
 
-def make_scene(name: str = "offroad", *, seed: int = 0, obstacles: bool = True) -> Scene:
+def make_scene(name: str = "offroad", *, seed: int = 0, obstacles: bool = True,
+               region=None) -> Scene:
     """The named scene (see :data:`SCENES`), deterministic in ``seed``.
 
-    ``obstacles=False`` gives the bare terrain. Every scene but ``offroad`` and ``section6``
-    is bare; add obstacles with :meth:`Scene.with_obstacles` or use :func:`default_obstacles`.
+    ``obstacles=False`` gives the bare terrain. Only ``offroad``, ``crossing`` and
+    ``section6`` have obstacles; add some with :meth:`Scene.with_obstacles` (for example
+    :func:`default_obstacles`). ``region`` (x_min, x_max, y_min, y_max) in metres replaces
+    the default 40 m × 30 m extent (the terrain is defined everywhere; a larger region gives
+    a lidar more to see, e.g. (-40, 40, -40, 40) for a full 360° frame).
     """
-    if name == "section6":
-        scene = section6_scene()
-        return scene if obstacles else scene.without_obstacles()
-    if name not in _BUILDERS:
-        from ..errors import did_you_mean
-
+    if name not in SCENES:
         hint = did_you_mean(str(name), list(SCENES))
         raise InputError(f"unknown scene {name!r}" + (f" ({hint})" if hint else "")
                          + f"; scenes are: {', '.join(SCENES)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise InputError(f"seed must be an integer; got {seed!r}")
-    rng = np.random.default_rng(int(seed))
-    features, obstacle_set = _BUILDERS[name](rng)
-    return Scene(name, tuple(features), obstacle_set if obstacles else (), seed=int(seed))
+    if name == "section6":
+        scene = section6_scene()
+    else:
+        rng = np.random.default_rng(int(seed))
+        features, obstacle_set = _BUILDERS[name](rng)
+        scene = Scene(name, tuple(features), obstacle_set, seed=int(seed))
+    if not obstacles:
+        scene = scene.without_obstacles()
+    if region is not None:
+        scene = scene.with_region(region)
+    return scene
 
 
 def default_obstacles(seed: int = 0) -> tuple[Obstacle, ...]:

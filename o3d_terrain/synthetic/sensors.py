@@ -15,8 +15,8 @@ world_from_sensor = Rz(yaw) · Ry(pitch) · Rx(roll).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 import open3d as o3d
@@ -187,7 +187,8 @@ class SyntheticCloud:
 
     ``positions`` are the measured points (with noise) and ``true_positions`` the noise-free
     hits of the same rays, both (N, 3) float64 in the sensor frame. ``obstacle_id`` is -1 for
-    terrain, else the index of the obstacle in ``scene.obstacles``.
+    terrain, else the index of the obstacle in ``scene.obstacles`` (stable over a sequence,
+    so it doubles as the track id).
     """
 
     positions: np.ndarray
@@ -196,6 +197,8 @@ class SyntheticCloud:
     world_from_sensor: np.ndarray
     scene: Scene
     sensor: str
+    #: seconds since the start of a sequence (the scene is the one at this time)
+    time: float = 0.0
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -346,7 +349,7 @@ def terrain_rmse(surface: Callable, cloud: SyntheticCloud, *, region=None,
     a = np.abs(error)
     return TerrainError(rmse=float(np.sqrt(np.mean(error**2))), mean_abs=float(a.mean()),
                         p95_abs=float(np.percentile(a, 95)), max_abs=float(a.max()),
-                        bias=float(error.mean()), samples=int(len(error)))
+                        bias=float(error.mean()), samples=len(error))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -398,7 +401,7 @@ class Camera:
     cy: float
 
     @classmethod
-    def make(cls, width: int, height: int, focal_px: float | None) -> "Camera":
+    def make(cls, width: int, height: int, focal_px: float | None) -> Camera:
         _check_int(width=width, height=height)
         focal = 0.8 * width if focal_px is None else focal_px
         _check_positive(focal_px=focal)
@@ -461,3 +464,40 @@ def _check_non_negative(**values):
         if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
                 or not math.isfinite(value) or value < 0:
             raise InputError(f"{name} must be a number >= 0; got {value!r}")
+
+
+def sample_sequence(scene: Scene, *, frames: int = 10, rate_hz: float = 10.0, speed: float = 5.0,
+                    start_xy=None, yaw_deg: float = 0.0, sensor: str = "lidar", seed: int = 0,
+                    **options) -> list[SyntheticCloud]:
+    """A sequence of frames from a sensor driving past static and moving obstacles.
+
+    The sensor starts at ``start_xy`` (default: the scene's sensor position) and drives along
+    its heading ``yaw_deg`` at ``speed`` m/s, following the terrain; frame k is taken at
+    t = k / ``rate_hz`` seconds from the scene at that time (every obstacle moved by its
+    velocity, :meth:`Scene.at_time`). Frame k uses the noise seed ``seed + k``. Other keyword
+    options go to :func:`sample_lidar` or :func:`sample_stereo`. Each cloud's
+    ``world_from_sensor`` is the sensor pose (the odometry truth) and ``time`` its time.
+    """
+    _check_int(frames=frames)
+    _check_positive(rate_hz=rate_hz)
+    _check_non_negative(speed=speed)
+    if sensor not in ("lidar", "stereo"):
+        raise InputError(f"sensor must be 'lidar' or 'stereo'; got {sensor!r}")
+    for reserved in ("sensor_xy", "camera_xy", "yaw_deg", "seed"):
+        if reserved in options:
+            raise InputError(f"sample_sequence sets {reserved} itself; use start_xy, yaw_deg "
+                             "and seed")
+    x0, y0 = scene.sensor_xy if start_xy is None else start_xy
+    _check_finite("start_xy", (x0, y0))
+    heading = math.radians(yaw_deg)
+    out = []
+    for k in range(frames):
+        t = k / rate_hz
+        at = scene.at_time(t)
+        xy = (x0 + speed * t * math.cos(heading), y0 + speed * t * math.sin(heading))
+        if sensor == "lidar":
+            cloud = sample_lidar(at, sensor_xy=xy, yaw_deg=yaw_deg, seed=seed + k, **options)
+        else:
+            cloud = sample_stereo(at, camera_xy=xy, yaw_deg=yaw_deg, seed=seed + k, **options)
+        out.append(replace(cloud, time=t))
+    return out

@@ -180,7 +180,7 @@ class Roughness:
 
     @classmethod
     def random(cls, rng: np.random.Generator, *, amplitude: float, count: int = 6,
-               wavelengths: tuple[float, float] = (1.5, 6.0)) -> "Roughness":
+               wavelengths: tuple[float, float] = (1.5, 6.0)) -> Roughness:
         """``count`` waves of total RMS height about ``amplitude`` metres."""
         each = amplitude * math.sqrt(2.0 / count)
         waves = tuple(
