@@ -98,6 +98,17 @@ def disparity_to_points(disparity: np.ndarray, calibration: StereoCalibration
     return points, index
 
 
+def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """Apply a 4 × 4 rigid transform to (N, 3) points (column by column: for tall arrays this
+    is several times faster than a BLAS matrix product with a 3 × 3 matrix)."""
+    r, t = transform[:3, :3], transform[:3, 3]
+    out = np.empty_like(points, dtype=np.float64)
+    for row in range(3):
+        out[:, row] = (points[:, 0] * r[row, 0] + points[:, 1] * r[row, 1]
+                       + points[:, 2] * r[row, 2] + t[row])
+    return out
+
+
 def camera_to_vehicle_matrix(*, camera_height: float, pitch_deg: float = 0.0,
                              roll_deg: float = 0.0) -> np.ndarray:
     """4 × 4 transform from the camera frame into the vehicle frame (module docstring)."""
@@ -171,7 +182,7 @@ class StereoCloud(StereoMatching):
             points, index = points[keep], index[keep]
         transform = self.camera_to_output()
         if self.frame != "camera":
-            points = points @ transform[:3, :3].T + transform[:3, 3]
+            points = transform_points(points, transform)
         h, w = match.disparity.shape
         rows, columns = np.divmod(index, w)
         attributes: dict[str, np.ndarray] = {

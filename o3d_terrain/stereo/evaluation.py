@@ -78,7 +78,8 @@ def lidar_in_camera(points: np.ndarray, lidar_to_camera: np.ndarray, camera_matr
     """
     points = np.asarray(points, dtype=np.float64)[:, :3]
     transform = np.asarray(lidar_to_camera, dtype=np.float64)
-    camera = points @ transform[:3, :3].T + transform[:3, 3]
+    r, t = transform[:3, :3], transform[:3, 3]
+    camera = np.stack([points @ r[row] + t[row] for row in range(3)], axis=1)
     depth = camera[:, 2]
     front = depth >= min_depth
     camera = camera[front]
