@@ -408,3 +408,19 @@ def test_region_override_gives_a_larger_scene():
         len(sample_lidar(small, beams=16, azimuth_steps=360))
     with pytest.raises(InputError, match="x_max > x_min"):
         make_scene("flat", region=(10, 0, 0, 10))
+
+
+def test_spurious_returns_are_labelled_and_off_the_surface(offroad):
+    from o3d_terrain.synthetic import OUTLIER
+
+    cloud = sample_lidar(offroad, range_noise=0.0, outlier_fraction=0.05, seed=3)
+    outliers = cloud.is_outlier
+    assert 0.03 < outliers.mean() < 0.07
+    assert (cloud.ground_truth[outliers] == OUTLIER).all()
+    ratio = np.linalg.norm(cloud.positions, axis=1) / np.linalg.norm(cloud.true_positions, axis=1)
+    assert ((ratio[outliers] >= 0.5) & (ratio[outliers] <= 1.5)).all()
+    np.testing.assert_allclose(ratio[~outliers], 1.0)
+    clean = sample_lidar(offroad, range_noise=0.0)
+    assert not clean.is_outlier.any() and (clean.ground_truth < OUTLIER).all()
+    with pytest.raises(InputError, match="outlier_fraction"):
+        sample_stereo(offroad, outlier_fraction=2.0)

@@ -14,7 +14,7 @@ class SyntheticScene(SourceStage):
     """Sample a synthetic off-road scene (exact terrain and obstacles) with a lidar or stereo model.
 
     The cloud is in the sensor frame (x forward, y left, z up), so a tilted sensor gives tilted
-    data. Each point carries ``ground_truth`` (1 terrain, 2 obstacle) and ``obstacle_ids``
+    data. Each point carries ``ground_truth`` (1 terrain, 2 obstacle, 3 spurious return) and ``obstacle_ids``
     (-1 terrain). The products ``truth`` (the scene: exact height, gradient, slope, obstacles)
     and ``sensor_truth`` (the sampled cloud with its pose, noise-free points and the exact
     terrain in the sensor frame) let later steps score the result. See docs/synthetic.md.
@@ -45,6 +45,10 @@ class SyntheticScene(SourceStage):
     beams: int = option(32, rule=Range(1, 1024), help="lidar: number of beams")
     azimuth_steps: int = option(900, rule=Range(1, 100_000),
                                 help="lidar: firings per revolution")
+    outlier_fraction: float = option(
+        0.0, rule=Range(0, 1),
+        help="fraction of spurious returns (dust, multipath, mismatches), moved along their ray "
+             "to 0.5-1.5 times the true range; ground_truth 3")
     disparity_noise_px: float = option(0.25, unit="px", rule=NON_NEGATIVE,
                                        help="stereo: standard deviation of the disparity noise")
     image_size: tuple = option((320, 240), kind=int, length=2, unit="px", rule=Range(8, 8192),
@@ -58,12 +62,14 @@ class SyntheticScene(SourceStage):
             cloud = sample_lidar(scene, sensor_height=self.sensor_height, yaw_deg=self.yaw_deg,
                                  tilt_deg=self.tilt_deg, beams=self.beams,
                                  azimuth_steps=self.azimuth_steps, range_noise=self.range_noise,
+                                 outlier_fraction=self.outlier_fraction,
                                  seed=self.seed)
         else:
             cloud = sample_stereo(scene, camera_height=self.sensor_height, yaw_deg=self.yaw_deg,
                                   tilt_deg=self.tilt_deg, width=self.image_size[0],
                                   height=self.image_size[1], baseline=self.baseline,
-                                  disparity_noise_px=self.disparity_noise_px, seed=self.seed)
+                                  disparity_noise_px=self.disparity_noise_px,
+                                  outlier_fraction=self.outlier_fraction, seed=self.seed)
         frame = Frame(cloud.to_pointcloud()).with_products(truth=scene, sensor_truth=cloud)
         return frame.with_note(
             f"{self.type_name}: scene '{self.scene}' (seed {self.seed}), {self.sensor}, "

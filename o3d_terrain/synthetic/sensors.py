@@ -27,6 +27,7 @@ from .scene import Scene
 #: ``ground_truth`` attribute values
 TERRAIN = 1
 OBSTACLE = 2
+OUTLIER = 3
 
 #: rotation taking optical camera axes (x right, y down, z forward) to sensor axes
 #: (x forward, y left, z up): sensor = SENSOR_FROM_OPTICAL @ optical
@@ -199,6 +200,8 @@ class SyntheticCloud:
     sensor: str
     #: seconds since the start of a sequence (the scene is the one at this time)
     time: float = 0.0
+    #: (N,) bool: a spurious return moved along its ray off the surface (None = none)
+    outliers: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -209,9 +212,18 @@ class SyntheticCloud:
         return self.obstacle_id >= 0
 
     @property
+    def is_outlier(self) -> np.ndarray:
+        """(N,) bool: a spurious return (dust, multipath) that lies on no surface."""
+        if self.outliers is None:
+            return np.zeros(len(self.positions), dtype=bool)
+        return self.outliers
+
+    @property
     def ground_truth(self) -> np.ndarray:
-        """(N,) int32: 1 = terrain, 2 = obstacle."""
-        return np.where(self.is_obstacle, OBSTACLE, TERRAIN).astype(np.int32)
+        """(N,) int32: 1 = terrain, 2 = obstacle, 3 = spurious return (outlier)."""
+        truth = np.where(self.is_obstacle, OBSTACLE, TERRAIN).astype(np.int32)
+        truth[self.is_outlier] = OUTLIER
+        return truth
 
     # -- frames ------------------------------------------------------------------------------
     def to_world(self, points: np.ndarray) -> np.ndarray:
@@ -236,7 +248,8 @@ class SyntheticCloud:
 
     def to_pointcloud(self) -> o3d.t.geometry.PointCloud:
         """A tensor cloud: float64 positions (sensor frame), (N, 1) int32 attributes
-        ``ground_truth`` (1 terrain, 2 obstacle) and ``obstacle_ids`` (-1 terrain)."""
+        ``ground_truth`` (1 terrain, 2 obstacle, 3 outlier) and ``obstacle_ids`` (-1 terrain,
+        else the index of the obstacle the ray hit)."""
         cloud = o3d.t.geometry.PointCloud(
             {"positions": o3d.core.Tensor(np.ascontiguousarray(self.positions, dtype=np.float64))}
         )
@@ -290,7 +303,7 @@ class SyntheticCloud:
             if not (region[1] > region[0] and region[3] > region[2]):
                 raise InputError(f"region must have x_max > x_min and y_max > y_min; got {region}")
             return tuple(float(v) for v in region)
-        terrain = self.positions[~self.is_obstacle]
+        terrain = self.positions[~self.is_obstacle & ~self.is_outlier]
         if len(terrain) == 0:
             raise InputError("the cloud has no terrain point; give a region")
         return (terrain[:, 0].min(), terrain[:, 0].max(), terrain[:, 1].min(), terrain[:, 1].max())
@@ -322,7 +335,7 @@ def terrain_rmse(surface: Callable, cloud: SyntheticCloud, *, region=None,
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     keep = np.ones(gx.shape, dtype=bool)
     if covered_only:
-        terrain = cloud.positions[~cloud.is_obstacle]
+        terrain = cloud.positions[~cloud.is_obstacle & ~cloud.is_outlier]
         ix = np.floor((terrain[:, 0] - region[0]) / spacing).astype(np.int64)
         iy = np.floor((terrain[:, 1] - region[2]) / spacing).astype(np.int64)
         inside = (ix >= 0) & (ix < len(xs)) & (iy >= 0) & (iy < len(ys))
@@ -359,13 +372,16 @@ def terrain_rmse(surface: Callable, cloud: SyntheticCloud, *, region=None,
 def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
                  yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), beams: int = 32,
                  azimuth_steps: int = 900, fov_deg=(-25.0, 3.0), min_range: float = 1.0,
-                 max_range: float = 80.0, range_noise: float = 0.02, seed: int = 0) -> SyntheticCloud:
+                 max_range: float = 80.0, range_noise: float = 0.02, outlier_fraction: float = 0.0,
+                 seed: int = 0) -> SyntheticCloud:
     """A spinning multi-beam lidar frame.
 
     ``beams`` channels with elevations evenly spread over ``fov_deg`` (degrees, in the sensor
     frame), ``azimuth_steps`` firings over 360°. Returns hits between ``min_range`` and
     ``max_range`` metres, with Gaussian range noise of ``range_noise`` metres (standard
-    deviation) along each beam. The defaults give about 20k points on the 40 m × 30 m scenes;
+    deviation) along each beam. A fraction ``outlier_fraction`` of the returns are spurious
+    (dust, multipath): moved along their beam to between 0.5 and 1.5 times the true range
+    (``is_outlier``, ground_truth 3). The defaults give about 20k points on the 40 m × 30 m scenes;
     ``beams=64, azimuth_steps=1800`` gives a 360° frame of about 80k-120k points.
     """
     _check_int(beams=beams, azimuth_steps=azimuth_steps)
@@ -386,8 +402,21 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
     directions, t, index = directions[keep], t[keep], index[keep]
     rng = np.random.default_rng(seed)
     measured = t + rng.normal(0.0, range_noise, len(t)) if range_noise > 0 else t
+    measured, outliers = _spurious(measured, outlier_fraction, rng)
     return SyntheticCloud(directions * measured[:, None], directions * t[:, None], index, pose,
-                          scene, "lidar")
+                          scene, "lidar", outliers=outliers)
+
+
+def _spurious(measured: np.ndarray, fraction: float, rng: np.random.Generator):
+    """Move a random ``fraction`` of the ranges to 0.5-1.5 times their value (spurious returns)."""
+    if not (isinstance(fraction, (int, float)) and 0.0 <= fraction <= 1.0):
+        raise InputError(f"outlier_fraction must be a number in [0, 1]; got {fraction!r}")
+    if fraction == 0:
+        return measured, None
+    outliers = rng.random(len(measured)) < fraction
+    factor = rng.uniform(0.5, 1.0, len(measured))
+    factor = np.where(rng.random(len(measured)) < 0.5, factor, 2.0 - factor)  # 0.5-1.5, not 1
+    return np.where(outliers, measured * factor, measured), outliers
 
 
 @dataclass(frozen=True)
@@ -417,13 +446,16 @@ def sample_stereo(scene: Scene, *, camera_xy=None, camera_height: float = 1.6,
                   yaw_deg: float = 0.0, tilt_deg=(0.0, 5.0), width: int = 320, height: int = 240,
                   focal_px: float | None = None, baseline: float = 0.3, pixel_step: int = 1,
                   disparity_noise_px: float = 0.25, min_disparity_px: float = 1.0,
-                  max_range: float = 60.0, seed: int = 0) -> SyntheticCloud:
+                  max_range: float = 60.0, outlier_fraction: float = 0.0,
+                  seed: int = 0) -> SyntheticCloud:
     """A stereo-like cloud: one point per pixel of the left camera that sees a surface.
 
     The true depth Z of each pixel gives the disparity d = f·B/Z; Gaussian noise of
     ``disparity_noise_px`` pixels is added to d and the point is moved along its viewing ray
     to the depth f·B/d', so the depth noise grows with Z² (σ_Z ≈ Z²·σ_d / (f·B)). Pixels with
-    d' below ``min_disparity_px`` or depth beyond ``max_range`` are dropped. ``focal_px``
+    d' below ``min_disparity_px`` or depth beyond ``max_range`` are dropped. A fraction
+    ``outlier_fraction`` of the points are gross mismatches: moved along their ray to between
+    0.5 and 1.5 times their depth (``is_outlier``, ground_truth 3). ``focal_px``
     defaults to 0.8·width (a 64° horizontal field of view). Positions are in the left
     camera's sensor frame (x forward, y left, z up). 320×240 gives about 40k points; 640×480
     about 150k; ``width=1024, height=768`` about 400k.
@@ -449,8 +481,9 @@ def sample_stereo(scene: Scene, *, camera_xy=None, camera_height: float = 1.6,
         measured = fb / disparity
     keep = (disparity >= max(min_disparity_px, 1e-9)) & (measured <= max_range) & (depth <= max_range)
     directions, depth, measured, index = directions[keep], depth[keep], measured[keep], index[keep]
+    measured, outliers = _spurious(measured, outlier_fraction, rng)
     return SyntheticCloud(directions * measured[:, None], directions * depth[:, None], index, pose,
-                          scene, "stereo")
+                          scene, "stereo", outliers=outliers)
 
 
 def _check_int(**values):
