@@ -10,7 +10,9 @@ pixels, float32, NaN where no disparity is trusted. Validity comes from:
 - the uniqueness test (``uniqueness_ratio``): the best cost must beat the second best;
 - speckle filtering (``speckle_window_size``, ``speckle_range``): small connected blobs that
   differ from their surroundings are removed;
-- the disparity range: values at its lower end are "no match".
+- the disparity range: values at its lower end are "no match";
+- a texture check (``min_texture``): blank areas (sky, glare) are invalid rather than matched
+  on image noise.
 
 Disparities are sub-pixel (OpenCV fits a parabola to the costs around the minimum; 1/16 px
 steps). The columns at the left edge, where the search would run off the right image, are matched
@@ -126,6 +128,11 @@ class StereoMatching(Component):
     match_left_border: bool = option(
         True, help="also match the left columns whose search runs off the right image (padded "
                    "border); false = OpenCV's default, those columns are invalid")
+    min_texture: float = option(
+        0.0, rule=Range(0, None), unit="grey levels",
+        help="pixels whose 7 × 7 neighbourhood in the left image has a standard deviation below "
+             "this are invalid (sky, glare and blank areas otherwise match image noise); "
+             "0 = no check; 2 suits outdoor scenes with sky")
     downscale: int = option(
         1, rule=Range(1, 8), help="shrink both images by this factor before matching (speed); "
                                   "the cloud has one point per matched pixel")
@@ -186,6 +193,8 @@ class StereoMatching(Component):
             low = math.floor(low / self.downscale)
             high = math.ceil(high / self.downscale)
         disparity = self._sgbm(left_image, right_image, low, high)
+        if self.min_texture > 0:
+            disparity[local_contrast(left_image) < self.min_texture] = np.nan
         if self.fill_holes:
             disparity = fill_disparity_holes(disparity)
         return StereoMatch(disparity, left_image, calib, (low, high), offset)
@@ -366,6 +375,17 @@ def check_rectified(left: np.ndarray, right: np.ndarray, *, max_vertical_dispari
             "feature is to the right of the left one's): the left and right images look swapped"
         )
     return offset
+
+
+def local_contrast(image: np.ndarray, size: int = 7) -> np.ndarray:
+    """Standard deviation of the grey levels in a ``size`` × ``size`` window around each pixel."""
+    import cv2
+
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    values = grey.astype(np.float32)
+    mean = cv2.boxFilter(values, -1, (size, size))
+    mean_square = cv2.boxFilter(values * values, -1, (size, size))
+    return np.sqrt(np.maximum(mean_square - mean * mean, 0.0))
 
 
 def fill_disparity_holes(disparity: np.ndarray) -> np.ndarray:
