@@ -9,3 +9,6 @@ from .stereo import StereoToCloud
 __all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize", "ReadCloud"]
 __all__ += ["SyntheticScene"]
 __all__ += ["StereoToCloud"]
+from .obstacles import ObstacleDetector, TraversabilityCost
+
+__all__ += ["ObstacleDetector", "TraversabilityCost"]
