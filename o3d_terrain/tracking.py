@@ -267,7 +267,7 @@ def run_sequence(folder: str | Path, *, tracker: ObstacleTracker | None = None,
                  pattern: str = "*") -> list[SequenceStep]:
     """Track obstacles through the cloud files of a folder, in file-name order.
 
-    Frames are the files matching ``pattern`` with a cloud extension; frame k has time
+    Frames are the files matching ``pattern`` with a cloud extension (``poses.txt`` aside); frame k has time
     k * frame_interval. poses: a (K, 4, 4) array or a KITTI-style poses file; None = the
     folder's ``poses.txt`` when present, else no poses (nearest-neighbour association in the
     sensor frame). stages: stages run on each frame before detection (e.g. GridQuantize,
@@ -282,7 +282,8 @@ def run_sequence(folder: str | Path, *, tracker: ObstacleTracker | None = None,
     problem = _check("frame_interval", frame_interval)
     if problem:
         raise InputError(f"run_sequence: {problem}")
-    files = sorted(p for p in folder.glob(pattern) if p.suffix.lower() in CLOUD_EXTENSIONS)
+    files = sorted(p for p in folder.glob(pattern)
+                   if p.suffix.lower() in CLOUD_EXTENSIONS and p.name != "poses.txt")
     if not files:
         raise InputError(f"run_sequence: no cloud file matching {pattern!r} in {folder} "
                          f"(extensions: {', '.join(CLOUD_EXTENSIONS)})")
