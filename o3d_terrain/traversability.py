@@ -27,6 +27,7 @@ circumscribed radius the cost is at least 0.99 exp(-(d - r_in) / inflation_scale
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -155,7 +156,11 @@ def load_vehicle_profile(name_or_path: str | Path | VehicleProfile) -> VehiclePr
     """A built-in profile by name (e.g. ``"offroad_suv"``) or a YAML file by path."""
     if isinstance(name_or_path, VehicleProfile):
         return name_or_path
-    text = str(name_or_path)
+    path = _profile_path(str(name_or_path))
+    return _read_profile(str(path), path.stat().st_mtime_ns)
+
+
+def _profile_path(text: str) -> Path:
     path = Path(text)
     if path.suffix.lower() not in (".yaml", ".yml"):
         names = vehicle_profile_names()
@@ -169,8 +174,15 @@ def load_vehicle_profile(name_or_path: str | Path | VehicleProfile) -> VehiclePr
         path = VEHICLES_DIR / f"{text}.yaml"
     if not path.is_file():
         raise InputError(f"vehicle profile file {path} not found; check the path")
+    return path
+
+
+@functools.lru_cache(maxsize=64)
+def _read_profile(path_text: str, mtime_ns: int) -> VehicleProfile:
+    """Parse a profile file once per modification time (profiles are immutable values)."""
     import yaml
 
+    path = Path(path_text)
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

@@ -1,0 +1,135 @@
+"""Obstacles and cost map: speed on a 120k-point frame, detection on SemanticKITTI, tracking on
+the synthetic sequence.
+
+    .venv/bin/python benchmarks/bench_obstacles.py [--repeats 30]
+
+Speed: median wall time of obstacle clustering plus the cost map (ObstacleDetector +
+TraversabilityCost given the terrain surface and the Segmenter's labels) on KITTI seq. 00
+frame 000000 (124,668 points) when ../shared/data is present, else on a 64-beam synthetic
+frame. The terrain fit is not included (it belongs to the terrain benchmark).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
+
+from o3d_terrain.api import fit_terrain  # noqa: E402
+from o3d_terrain.frame import as_frame  # noqa: E402
+from o3d_terrain.obstacles import detect_obstacles  # noqa: E402
+from o3d_terrain.segment import segment_points  # noqa: E402
+from o3d_terrain.traversability import traversability_cost  # noqa: E402
+
+
+def data_root() -> Path | None:
+    env = os.environ.get("O3D_TERRAIN_DATA")
+    root = Path(env) if env else REPO.parent / "shared" / "data"
+    return root if root.is_dir() else None
+
+
+def kitti_frame(root: Path, name: str):
+    folder = root / "kitti_seq00_lidar"
+    points = np.fromfile(folder / "velodyne" / f"{name}.bin", np.float32).reshape(-1, 4)
+    labels = np.fromfile(folder / "labels" / f"{name}.label", np.uint32)
+    return points[:, :3].astype(np.float64), labels
+
+
+def speed(positions: np.ndarray, repeats: int) -> None:
+    surface = fit_terrain(positions)
+    labels, heights = segment_points(surface, positions)
+    frame = as_frame(positions).with_attributes(labels=labels, heights_above_terrain=heights)
+    times = {"clustering": [], "cost map": [], "total": []}
+    for k in range(repeats + 2):
+        t0 = time.perf_counter()
+        obstacles = detect_obstacles(frame, surface=surface)
+        t1 = time.perf_counter()
+        cost_map = traversability_cost(surface, frame, obstacles=obstacles)
+        t2 = time.perf_counter()
+        if k >= 2:  # the first runs compile and warm caches
+            times["clustering"].append(t1 - t0)
+            times["cost map"].append(t2 - t1)
+            times["total"].append(t2 - t0)
+    print(f"speed: {len(positions)} points, {len(obstacles)} obstacles, cost map "
+          f"{cost_map.shape[0]} x {cost_map.shape[1]} cells of {cost_map.cell_size} m")
+    for key, values in times.items():
+        print(f"  {key:<11} median {1e3 * statistics.median(values):6.2f} ms   "
+              f"min {1e3 * min(values):6.2f} ms   ({repeats} runs)")
+
+
+def kitti_detection(root: Path) -> None:
+    from test_obstacles import KITTI_GROUND, found_fraction, kitti_instances
+
+    for name in ("000000", "000001", "000002"):
+        positions, labels = kitti_frame(root, name)
+        surface = fit_terrain(positions)
+        point_labels, heights = segment_points(surface, positions)
+        instances = kitti_instances(labels, positions)
+        ground = np.isin(labels & 0xFFFF, KITTI_GROUND)
+        for method in ("grid", "dbscan"):
+            t0 = time.perf_counter()
+            obstacles = detect_obstacles(positions, labels=point_labels,
+                                         heights_above_terrain=heights, method=method)
+            seconds = time.perf_counter() - t0
+            found = found_fraction(obstacles.cluster_ids, instances, 50)
+            mostly_ground = sum(1 for o in obstacles if ground[o.indices].mean() > 0.5)
+            print(f"kitti {name} {method:<6}: {sum(found.values())}/{len(found)} instances "
+                  f"(>= 50 points) found, {len(obstacles)} obstacles, {mostly_ground} mostly "
+                  f"ground, {1e3 * seconds:.0f} ms (one run)")
+
+
+def tracking() -> None:
+    from test_tracking import SENSOR_HEIGHT, flat_surface, majority
+
+    from o3d_terrain.tracking import synthetic_sequence, track_frames
+
+    frames = synthetic_sequence(frames=20, seed=0)
+    for label, detect in (("exact ground", lambda f: detect_obstacles(
+            f, surface=flat_surface(-SENSOR_HEIGHT))), ("fitted terrain", None)):
+        steps = track_frames(frames, detect=detect)
+        identities: dict[int, set] = {}
+        spurious = spurious_confirmed = 0
+        for frame, step in zip(frames, steps):
+            confirmed = {t.id for t in step.tracks}
+            for obstacle in step.obstacles:
+                truth = majority(frame.truth[obstacle.indices])
+                track = step.track_of_obstacle.get(obstacle.id)
+                if truth == -3:
+                    spurious += 1
+                    spurious_confirmed += track in confirmed
+                elif truth >= 0 and track in confirmed:
+                    identities.setdefault(truth, set()).add(track)
+        switches = sum(len(v) - 1 for v in identities.values())
+        print(f"tracking ({label}, {len(frames)} frames): {len(identities)}/5 obstacles "
+              f"tracked, {switches} identity switches, {spurious} one-frame spurious "
+              f"detections, {spurious_confirmed} confirmed")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=30)
+    args = parser.parse_args()
+    root = data_root()
+    if root is not None:
+        positions, _ = kitti_frame(root, "000000")
+    else:
+        from o3d_terrain.synthetic import make_scene, sample_lidar
+
+        positions = sample_lidar(make_scene("offroad"), beams=64, azimuth_steps=1800).positions
+    speed(positions, args.repeats)
+    if root is not None:
+        kitti_detection(root)
+    tracking()
+
+
+if __name__ == "__main__":
+    main()
