@@ -276,15 +276,28 @@ class GridBasis:
         hy = (y_max - y_min) / max(n1 - 1, 1)
         self.penalty_weights = (hy * hy / (hx * hx), 2.0, hx * hx / (hy * hy))
 
-    def evaluate(self, control: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-        """Surface at every cell centre, (m0, m1)."""
-        bx, by = self.matrix_x, self.matrix_y
+    def evaluate(self, control: np.ndarray, weights: np.ndarray | None = None,
+                 mask: np.ndarray | None = None) -> np.ndarray:
+        """Surface at the cell centres, (m0, m1); only where ``mask`` (default: everywhere)."""
+        if mask is None:
+            mask = np.ones((self.spans_x.size, self.spans_y.size), bool)
+        args = (self.spans_x, self.basis_x, self.spans_y, self.basis_y)
         if weights is None:
-            return bx @ control @ by.T
-        return (bx @ (weights * control) @ by.T) / (bx @ weights @ by.T)
+            return _tk.grid_evaluate(*args, np.ascontiguousarray(control), mask)
+        num = _tk.grid_evaluate(*args, np.ascontiguousarray(weights * control), mask)
+        den = _tk.grid_evaluate(*args, np.ascontiguousarray(weights), mask)
+        return np.divide(num, den, out=np.zeros_like(num), where=mask)
 
-    def denominator(self, weights: np.ndarray) -> np.ndarray:
-        return self.matrix_x @ weights @ self.matrix_y.T
+    def denominator(self, weights: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        if mask is None:
+            mask = np.ones((self.spans_x.size, self.spans_y.size), bool)
+        return _tk.grid_evaluate(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
+                                 np.ascontiguousarray(weights), mask)
+
+    def project(self, values: np.ndarray) -> np.ndarray:
+        """Bx^T V By: grid values gathered onto the control grid, (n0, n1)."""
+        return _tk.grid_project(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
+                                np.ascontiguousarray(values, dtype=np.float64), self.n0, self.n1)
 
     def solve_tensor(self, z: np.ndarray, sample_weights: np.ndarray,
                      rational_weights: np.ndarray | None = None, smoothing: float = 0.0,
@@ -301,7 +314,8 @@ class GridBasis:
         if rational_weights is None:
             mw, rv = w, w * zz
         else:
-            d = self.denominator(rational_weights)
+            d = self.denominator(rational_weights, w > 0)
+            d = np.where(w > 0, d, 1.0)
             mw, rv = w / (d * d), w * zz / d
         band, rhs = _tk.assemble_band(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
                                       np.ascontiguousarray(mw), np.ascontiguousarray(rv),
@@ -317,7 +331,9 @@ class GridBasis:
             _tk.add_thin_plate_band(band, self.n0, self.n1, smoothing * max(data_per_ctrl, 1e-12),
                                     *self.penalty_weights)
         band[0] += ridge * scale
-        q = solveh_banded(band, rhs, lower=True, check_finite=False)
+        q, ok = _tk.solve_band_cholesky(band, rhs)
+        if not ok:  # numerically indefinite: fall back to LAPACK, which reports the reason
+            q = solveh_banded(band, rhs, lower=True, check_finite=False)
         return q.reshape(self.n0, self.n1)
 
     def solve_two_pass(self, z: np.ndarray, sample_weights: np.ndarray,

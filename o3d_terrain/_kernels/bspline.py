@@ -42,6 +42,17 @@ def find_span(n_ctrl, degree, t, knots):
         return n
     if t <= knots[degree]:
         return degree
+    # uniform interior knots: guess the span directly, then correct by comparisons
+    width = (knots[n + 1] - knots[degree]) / (n + 1 - degree)
+    guess = degree + int((t - knots[degree]) / width)
+    if guess > n:
+        guess = n
+    while guess > degree and t < knots[guess]:
+        guess -= 1
+    while guess < n and t >= knots[guess + 1]:
+        guess += 1
+    if knots[guess] <= t < knots[guess + 1]:
+        return guess
     low = degree
     high = n + 1
     mid = (low + high) // 2
@@ -154,6 +165,41 @@ def basis_table(t, n_ctrl, degree, knots, n_ders):
 
 
 @numba.njit(cache=True)
+def basis_funs_first_derivative(span, t, degree, knots, values, derivatives, left, right):
+    """Basis functions and first derivatives at t without allocation.
+
+    A2.2 BasisFuns run to degree - 1, then the derivative formula (Piegl & Tiller eq. 2.7)
+    N'_{i,p} = p N_{i,p-1} / (u_{i+p} - u_i) - p N_{i+1,p-1} / (u_{i+p+1} - u_{i+1}),
+    then the last step of A2.2 to degree p. ``left``/``right`` are scratch of size degree + 1.
+    """
+    p = degree
+    values[0] = 1.0
+    for j in range(1, p + 1):
+        if j == p:
+            # values[k] = N_{span-p+1+k, p-1}, k = 0..p-1
+            for r in range(p + 1):
+                d = 0.0
+                i = span - p + r
+                if r >= 1:
+                    den = knots[i + p] - knots[i]
+                    if den > 0.0:
+                        d += values[r - 1] / den
+                if r <= p - 1:
+                    den = knots[i + p + 1] - knots[i + 1]
+                    if den > 0.0:
+                        d -= values[r] / den
+                derivatives[r] = p * d
+        left[j] = t - knots[span + 1 - j]
+        right[j] = knots[span + j] - t
+        saved = 0.0
+        for r in range(j):
+            temp = values[r] / (right[r + 1] + left[j - r])
+            values[r] = saved + right[r + 1] * temp
+            saved = left[j - r] * temp
+        values[j] = saved
+
+
+@numba.njit(cache=True)
 def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_derivatives):
     """Rational tensor-product surface and its first derivatives at points (x[k], y[k]).
 
@@ -169,9 +215,12 @@ def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_deri
     z = np.empty(n)
     dzdx = np.empty(n) if with_derivatives else np.empty(0)
     dzdy = np.empty(n) if with_derivatives else np.empty(0)
-    nd = 1 if with_derivatives else 0
-    bx = np.empty((2, p + 1))
-    by = np.empty((2, p + 1))
+    bx = np.empty(p + 1)
+    by = np.empty(p + 1)
+    dbx = np.zeros(p + 1)
+    dby = np.zeros(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
     for k in range(n):
         if not (math.isfinite(x[k]) and math.isfinite(y[k])):
             z[k] = np.nan
@@ -182,11 +231,11 @@ def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_deri
         sx = find_span(n0, p, x[k], knots_x)
         sy = find_span(n1, p, y[k], knots_y)
         if with_derivatives:
-            ders_basis_funs(sx, x[k], p, nd, knots_x, bx)
-            ders_basis_funs(sy, y[k], p, nd, knots_y, by)
+            basis_funs_first_derivative(sx, x[k], p, knots_x, bx, dbx, left, right)
+            basis_funs_first_derivative(sy, y[k], p, knots_y, by, dby, left, right)
         else:
-            basis_funs(sx, x[k], p, knots_x, bx[0])
-            basis_funs(sy, y[k], p, knots_y, by[0])
+            basis_funs_first_derivative(sx, x[k], p, knots_x, bx, dbx, left, right)
+            basis_funs_first_derivative(sy, y[k], p, knots_y, by, dby, left, right)
         a = 0.0
         d = 0.0
         ax = 0.0
@@ -195,20 +244,24 @@ def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_deri
         dy = 0.0
         for i in range(p + 1):
             ia = sx - p + i
+            ra = 0.0
+            rd = 0.0
+            ra_y = 0.0
+            rd_y = 0.0
             for j in range(p + 1):
                 jb = sy - p + j
                 r = weights[ia, jb]
                 rq = r * control[ia, jb]
-                nn = bx[0, i] * by[0, j]
-                a += nn * rq
-                d += nn * r
-                if with_derivatives:
-                    nx_ = bx[1, i] * by[0, j]
-                    ny_ = bx[0, i] * by[1, j]
-                    ax += nx_ * rq
-                    dx += nx_ * r
-                    ay += ny_ * rq
-                    dy += ny_ * r
+                ra += by[j] * rq
+                rd += by[j] * r
+                ra_y += dby[j] * rq
+                rd_y += dby[j] * r
+            a += bx[i] * ra
+            d += bx[i] * rd
+            ax += dbx[i] * ra
+            dx += dbx[i] * rd
+            ay += bx[i] * ra_y
+            dy += bx[i] * rd_y
         s = a / d
         z[k] = s
         if with_derivatives:

@@ -128,3 +128,91 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy):
                         if 0 <= d <= bandwidth:
                             band[d, idx[u]] += w * coef[u] * coef[s]
     return band
+
+
+@numba.njit(cache=True)
+def solve_band_cholesky(band, rhs):
+    """Solve A x = rhs for symmetric positive definite A in lower band storage.
+
+    Right-looking banded Cholesky A = L L^T (Golub & Van Loan, Algorithm 4.3.5), then forward
+    and back substitution, on a row-major copy (each column of L contiguous). ``band`` and
+    ``rhs`` are not modified. Returns (x, ok); ok is False when a pivot is not positive.
+    """
+    bw = band.shape[0] - 1
+    n = band.shape[1]
+    l = np.ascontiguousarray(band.T)  # l[k, d] = A[k + d, k]
+    for j in range(n):
+        pivot = l[j, 0]
+        if not pivot > 0.0:
+            return np.zeros(n), False
+        ljj = np.sqrt(pivot)
+        l[j, 0] = ljj
+        reach = min(bw, n - 1 - j)
+        inv = 1.0 / ljj
+        for d in range(1, reach + 1):
+            l[j, d] *= inv
+        for d1 in range(1, reach + 1):
+            v1 = l[j, d1]
+            if v1 == 0.0:
+                continue
+            col = j + d1
+            for d2 in range(d1, reach + 1):
+                l[col, d2 - d1] -= l[j, d2] * v1
+    x = rhs.copy()
+    for j in range(n):
+        x[j] /= l[j, 0]
+        reach = min(bw, n - 1 - j)
+        xj = x[j]
+        for d in range(1, reach + 1):
+            x[j + d] -= l[j, d] * xj
+    for j in range(n - 1, -1, -1):
+        reach = min(bw, n - 1 - j)
+        acc = x[j]
+        for d in range(1, reach + 1):
+            acc -= l[j, d] * x[j + d]
+        x[j] = acc / l[j, 0]
+    return x, True
+
+
+@numba.njit(cache=True)
+def grid_evaluate(spans_x, basis_x, spans_y, basis_y, coefficients, mask):
+    """(Bx C By^T)[i, j] at the cells where ``mask`` is true (0 elsewhere): a tensor-product
+    spline with coefficients C evaluated at grid-cell centres, using only the non-zero basis
+    values."""
+    p = basis_x.shape[1] - 1
+    m0 = spans_x.shape[0]
+    m1 = spans_y.shape[0]
+    out = np.zeros((m0, m1))
+    for i in range(m0):
+        sx = spans_x[i] - p
+        for j in range(m1):
+            if not mask[i, j]:
+                continue
+            sy = spans_y[j] - p
+            acc = 0.0
+            for a in range(p + 1):
+                row = 0.0
+                for b in range(p + 1):
+                    row += basis_y[j, b] * coefficients[sx + a, sy + b]
+                acc += basis_x[i, a] * row
+            out[i, j] = acc
+    return out
+
+
+@numba.njit(cache=True)
+def grid_project(spans_x, basis_x, spans_y, basis_y, values, n0, n1):
+    """(Bx^T V By)[a, b]: grid values gathered onto the control grid by the basis functions."""
+    p = basis_x.shape[1] - 1
+    out = np.zeros((n0, n1))
+    for i in range(spans_x.shape[0]):
+        sx = spans_x[i] - p
+        for j in range(spans_y.shape[0]):
+            v = values[i, j]
+            if v == 0.0:
+                continue
+            sy = spans_y[j] - p
+            for a in range(p + 1):
+                va = v * basis_x[i, a]
+                for b in range(p + 1):
+                    out[sx + a, sy + b] += va * basis_y[j, b]
+    return out

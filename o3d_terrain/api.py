@@ -1,0 +1,119 @@
+"""Open3D drop-in functions: ``fit_terrain`` and ``segment_terrain``.
+
+``segment_terrain`` returns ``(surface, inliers)`` in the manner of
+``open3d.geometry.PointCloud.segment_plane`` (which returns ``(plane_model, inliers)``):
+``inliers`` are int64 indices into the caller's cloud of the points labelled terrain.
+Both accept a legacy or tensor Open3D point cloud, an (N, 3)/(N, 4) numpy array or a Frame;
+the caller's cloud is never modified. Non-finite points are ignored (never inliers).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .frame import as_frame
+from .grid import quantize_points, region_of
+from .segment import TerrainLabel, segment_points
+from .spline import TerrainSurface
+from .terrain import fit_grid_detailed
+
+__all__ = ["fit_terrain", "segment_terrain", "cloud_positions"]
+
+
+def cloud_positions(cloud: Any) -> np.ndarray:
+    """(N, 3) float64 positions of anything :func:`~o3d_terrain.frame.as_frame` accepts."""
+    frame = as_frame(cloud)
+    return np.asarray(frame.positions, dtype=np.float64)
+
+
+def _check_region(region) -> tuple[float, float, float, float] | None:
+    if region is None:
+        return None
+    try:
+        values = tuple(float(v) for v in region)
+    except (TypeError, ValueError):
+        raise InputError(f"region must be (x_min, x_max, y_min, y_max) in metres, got {region!r}")
+    if len(values) != 4 or not all(math.isfinite(v) for v in values):
+        raise InputError(f"region must be four finite numbers (x_min, x_max, y_min, y_max), "
+                         f"got {region!r}")
+    if not (values[1] > values[0] and values[3] > values[2]):
+        raise InputError(f"region {values} is degenerate: it needs x_max > x_min and "
+                         f"y_max > y_min; give a region with a positive area")
+    return values
+
+
+def _fit(positions: np.ndarray, region, cell_size, control_points, degree, method, smoothing):
+    if not (isinstance(cell_size, (int, float)) and math.isfinite(cell_size) and cell_size > 0):
+        raise InputError(f"cell_size must be a finite number > 0 (metres), got {cell_size!r}")
+    if len(positions) == 0:
+        raise InputError("the cloud is empty; give a cloud with points")
+    finite = np.isfinite(positions).all(axis=1)
+    if not finite.any():
+        raise InputError(f"the cloud has no finite point (all {len(positions)} have NaN or "
+                         f"infinite coordinates)")
+    region = _check_region(region)
+    if region is None:
+        region = region_of(positions)
+        if not (region[1] > region[0] and region[3] > region[2]):
+            raise InputError(f"the cloud's x/y extent {region} is degenerate (all points on a "
+                             f"line or one spot); give a region")
+    grid = quantize_points(positions, cell_size=float(cell_size), region=region)
+    return fit_grid_detailed(grid, control_points=control_points, degree=degree, method=method,
+                             smoothing=smoothing), int((~finite).sum())
+
+
+def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: float = 3.5,
+                   low: float = 0.1, high: float = 0.5) -> float:
+    """Obstacle threshold from the data: ``factor`` times the robust spread of the points
+    at or below the surface (terrain noise; obstacles never lie below it), in [low, high] m."""
+    step = max(1, len(positions) // 50_000)
+    sample = positions[::step]
+    h = sample[:, 2] - surface(sample[:, 0], sample[:, 1])
+    below = h[(h <= 0) & (h > -high)]
+    if below.size < 10:
+        return low
+    noise = 1.4826 * float(np.median(-below))
+    return float(np.clip(factor * noise, low, high))
+
+
+def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
+                control_points: Sequence[int] | None = None, degree: int = 3,
+                method: str = "robust", smoothing: float = 0.05) -> TerrainSurface:
+    """Fit a rational B-spline terrain surface to a point cloud.
+
+    region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
+    cell_size: grid cell side (m). control_points: per axis; None = about one every 4 cells
+    (at least 1 m), at most 32 per axis. degree: B-spline degree. method: "robust" or "paper".
+    smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
+    """
+    positions = cloud_positions(cloud)
+    fit, _ = _fit(positions, region, cell_size, control_points, degree, method, smoothing)
+    return fit.surface
+
+
+def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
+                    cell_size: float = 0.5, control_points: Sequence[int] | None = None,
+                    degree: int = 3, distance_threshold: float | None = None,
+                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
+                    sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
+                    smoothing: float = 0.05) -> tuple[TerrainSurface, np.ndarray]:
+    """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
+
+    A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
+    range_coefficient * r^2 (r: horizontal range from ``sensor_origin``).
+    ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
+    just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`). Other options
+    as in :func:`fit_terrain`.
+    """
+    positions = cloud_positions(cloud)
+    fit, _ = _fit(positions, region, cell_size, control_points, degree, method, smoothing)
+    if distance_threshold is None:
+        distance_threshold = auto_threshold(fit.surface, positions)
+    labels, _ = segment_points(fit.surface, positions, threshold=distance_threshold,
+                               below_threshold=below_threshold,
+                               range_coefficient=range_coefficient, sensor_origin=sensor_origin)
+    return fit.surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)

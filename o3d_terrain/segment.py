@@ -1,0 +1,94 @@
+"""Segmentation of points against a terrain surface: signed height above terrain and labels.
+
+A point's height above the terrain is h = z - S(x, y) (vertical, metres). With a threshold
+t(r) = threshold + range_coefficient * r^2 that may grow with the point's horizontal range r
+from the sensor (stereo depth noise grows with range squared):
+
+- TERRAIN: -below_threshold <= h <= t(r)
+- OBSTACLE: h > t(r)
+- BELOW_TERRAIN: h < -below_threshold (multipath, reflections, stereo mismatches)
+- UNKNOWN: non-finite coordinates or outside the surface's region
+"""
+
+from __future__ import annotations
+
+import math
+from enum import IntEnum
+
+import numpy as np
+
+from .errors import InputError
+from .spline import TerrainSurface
+
+__all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds"]
+
+
+class TerrainLabel(IntEnum):
+    """Per-point labels written by :func:`segment_points` (attribute ``labels``)."""
+
+    UNKNOWN = 0
+    TERRAIN = 1
+    OBSTACLE = 2
+    BELOW_TERRAIN = 3
+
+
+def _positions(positions) -> np.ndarray:
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] < 3:
+        raise InputError(f"positions must be an (N, 3) array, got shape {p.shape}")
+    return p[:, :3]
+
+
+def heights_above_terrain(surface: TerrainSurface, positions) -> np.ndarray:
+    """Signed vertical height z - S(x, y) of each point (N,); NaN when undefined."""
+    p = _positions(positions)
+    return p[:, 2] - surface(p[:, 0], p[:, 1])
+
+
+def thresholds(positions, *, threshold: float, range_coefficient: float = 0.0,
+               sensor_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Per-point obstacle threshold t(r) = threshold + range_coefficient * r^2 (metres),
+    r = horizontal distance from ``sensor_origin``."""
+    p = _positions(positions)
+    if range_coefficient == 0.0:
+        return np.full(len(p), float(threshold))
+    r2 = (p[:, 0] - sensor_origin[0]) ** 2 + (p[:, 1] - sensor_origin[1]) ** 2
+    return threshold + range_coefficient * r2
+
+
+def _check(name: str, value, *, positive: bool) -> str | None:
+    if not (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value) and (value > 0 if positive else value >= 0)):
+        return f"{name} must be a finite number {'> 0' if positive else '>= 0'} (metres), got {value!r}"
+    return None
+
+
+def segment_points(surface: TerrainSurface, positions, *, threshold: float = 0.2,
+                   below_threshold: float = 0.5, range_coefficient: float = 0.0,
+                   sensor_origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
+
+    threshold: points higher than this above the surface are obstacles (m).
+    below_threshold: points lower than this below the surface are BELOW_TERRAIN noise (m).
+    range_coefficient: growth of the threshold with horizontal range squared (1/m), for
+        stereo clouds; 0 = constant threshold.
+    sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates).
+    """
+    problems = [m for m in (_check("threshold", threshold, positive=True),
+                            _check("below_threshold", below_threshold, positive=True),
+                            _check("range_coefficient", range_coefficient, positive=False))
+                if m]
+    if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
+        problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
+    if problems:
+        raise InputError("segment_points: " + "; ".join(problems))
+    p = _positions(positions)
+    h = heights_above_terrain(surface, p)
+    t = thresholds(p, threshold=threshold, range_coefficient=range_coefficient,
+                   sensor_origin=sensor_origin)
+    labels = np.full(len(p), TerrainLabel.UNKNOWN, np.uint8)
+    known = np.isfinite(h)
+    labels[known & (h > t)] = TerrainLabel.OBSTACLE
+    labels[known & (h < -below_threshold)] = TerrainLabel.BELOW_TERRAIN
+    labels[known & (h <= t) & (h >= -below_threshold)] = TerrainLabel.TERRAIN
+    return labels, h
