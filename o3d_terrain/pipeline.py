@@ -183,6 +183,20 @@ def _build(
     return cls.from_config(options, where), []
 
 
+def _build_list(items: Any, key: str, registry, base_dir: Path | None, kind: str):
+    """Build every item of a ``stages:``/``outputs:`` list; None marks an item that failed."""
+    if items is None:
+        return [], []
+    if not isinstance(items, list):
+        return [], [Problem(key, f"must be a list of {kind}s")]
+    built, problems = [], []
+    for index, item in enumerate(items):
+        component, found = _build(registry, item, f"{key}[{index}]", base_dir, kind)
+        problems += found
+        built.append(component)
+    return built, problems
+
+
 def parse_pipeline(config: Any, *, base_dir: str | Path | None = None) -> Pipeline:
     """Build a pipeline from a mapping (the parsed YAML). Raises ConfigError with every problem."""
     base = Path(base_dir) if base_dir is not None else None
@@ -202,26 +216,10 @@ def parse_pipeline(config: Any, *, base_dir: str | Path | None = None) -> Pipeli
             problems.append(Problem(f"source {source.type_name}", "is not a source stage",
                                     "use ReadCloud, StereoToCloud or SyntheticScene"))
             source = None
-    stages_config = config.get("stages", [])
-    if stages_config is None:
-        stages_config = []
-    if not isinstance(stages_config, list):
-        problems.append(Problem("stages", "must be a list of stages"))
-        stages_config = []
-    stages = []
-    for index, item in enumerate(stages_config):
-        stage, found = _build(STAGES, item, f"stages[{index}]", base, "stage")
-        problems += found
-        stages.append(stage)
-    outputs_config = config.get("outputs", []) or []
-    if not isinstance(outputs_config, list):
-        problems.append(Problem("outputs", "must be a list of writers"))
-        outputs_config = []
-    outputs = []
-    for index, item in enumerate(outputs_config):
-        writer, found = _build(WRITERS, item, f"outputs[{index}]", None, "writer")
-        problems += found
-        outputs.append(writer)
+    stages, found = _build_list(config.get("stages"), "stages", STAGES, base, "stage")
+    problems += found
+    outputs, found = _build_list(config.get("outputs"), "outputs", WRITERS, None, "writer")
+    problems += found
     if all(s is not None for s in stages) and all(w is not None for w in outputs):
         problems += check_chain(source, stages, outputs)
     output_dir = config.get("output_dir")
