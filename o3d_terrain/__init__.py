@@ -29,3 +29,10 @@ __all__ = [
     "STAGES", "GridQuantize", "ReadCloud",
     "Pipeline", "load_pipeline", "parse_pipeline", "WRITERS",
 ]
+from .spline import TerrainSurface, make_lsq_surface
+from .terrain import fit_grid, fit_grid_detailed
+from .segment import TerrainLabel
+from .api import fit_terrain, segment_terrain
+
+__all__ += ["TerrainSurface", "make_lsq_surface", "fit_grid", "fit_grid_detailed",
+            "TerrainLabel", "fit_terrain", "segment_terrain"]

@@ -12,3 +12,6 @@ __all__ += ["StereoToCloud"]
 from .obstacles import ObstacleDetector, TraversabilityCost
 
 __all__ += ["ObstacleDetector", "TraversabilityCost"]
+from .terrain import RationalBSplineTerrain, Segmenter, SlopeEstimator
+
+__all__ += ["RationalBSplineTerrain", "SlopeEstimator", "Segmenter"]

@@ -1,0 +1,128 @@
+"""Terrain stages: RationalBSplineTerrain (fit), SlopeEstimator (derivation), Segmenter."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
+from ..options import NON_NEGATIVE, POSITIVE, Range, option
+from ..segment import TerrainLabel, segment_points
+from ..terrain import METHODS, fit_grid_detailed
+from .base import Stage, stage
+
+
+def _check_control_points(value):
+    if value is not None and min(value) < 2:
+        return "must be at least degree + 1 per axis"
+    return None
+
+
+@stage
+class RationalBSplineTerrain(Stage):
+    """Fit a rational B-spline terrain surface to the height grid (Broggi et al. 2013, Sec. V).
+
+    Iterative re-weighted least squares with rational control-point weights and equalization,
+    growing the control grid from coarse to fine. ``method: robust`` (default) adds bounded
+    asymmetric weights, a thin-plate penalty for cells without data and a consistent rational
+    fit; ``method: paper`` runs Algorithm V-B.1 as printed (see docs/algorithm.md).
+    """
+
+    reads = ("grid",)
+    writes = ("surface", "terrain_fit")
+
+    control_points: tuple = option(
+        None, kind=int, length=2, broadcast=True, nullable=True, rule=Range(2, 1000),
+        check=_check_control_points,
+        help="control points per axis at the end of the growth; null = about one every "
+             "2 cells (at least 1 m), at most 32 per axis",
+    )
+    degree: int = option(3, rule=Range(1, 5), help="polynomial degree of the B-spline basis")
+    method: str = option("robust", choices=METHODS,
+                         help="'robust' (default) or 'paper' (Algorithm V-B.1 as printed)")
+    smoothing: float = option(0.05, rule=NON_NEGATIVE,
+                              help="thin-plate penalty relative to the data weight per control "
+                                   "point; keeps areas without data bounded")
+    noise_floor: float = option(0.03, unit="m", rule=NON_NEGATIVE,
+                                help="smallest noise threshold of the robust weights")
+    rational: bool = option(True, help="derive control-point weights R from the sample weights")
+
+    def check_options(self) -> list[str]:
+        if self.control_points is not None and min(self.control_points) < self.degree + 1:
+            return [f"control_points {self.control_points} must be >= degree + 1 = "
+                    f"{self.degree + 1} per axis"]
+        return []
+
+    def run(self, frame: Frame) -> Frame:
+        fit = fit_grid_detailed(
+            frame.product("grid"), control_points=self.control_points, degree=self.degree,
+            method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
+            rational=self.rational,
+        )
+        return frame.with_products(surface=fit.surface, terrain_fit=fit)
+
+
+@stage
+class SlopeEstimator(Stage):
+    """Slope of the terrain surface by analytic derivation, per point and as a grid.
+
+    Writes the per-point attribute ``slopes_deg`` (slope of the terrain under each point,
+    NaN outside the surface's region) and the product ``slope_grid`` = (slope_deg, x_centers,
+    y_centers) with ``slope_deg[ix, iy]`` in degrees at cell centres.
+    """
+
+    reads = ("surface",)
+    writes = ("slope_grid",)
+    writes_attributes = (SLOPES_DEG,)
+
+    cell_size: float = option(0.5, unit="m", rule=POSITIVE, help="cell side of the slope grid")
+
+    def run(self, frame: Frame) -> Frame:
+        surface = frame.product("surface")
+        p = frame.positions
+        slopes = surface.slope_deg(p[:, 0], p[:, 1]) if len(p) else np.zeros(0)
+        x_min, x_max, y_min, y_max = surface.region
+        xc = x_min + (np.arange(max(1, int(np.ceil((x_max - x_min) / self.cell_size - 1e-9))))
+                      + 0.5) * self.cell_size
+        yc = y_min + (np.arange(max(1, int(np.ceil((y_max - y_min) / self.cell_size - 1e-9))))
+                      + 0.5) * self.cell_size
+        grid = surface.slope_deg(xc[:, None], yc[None, :])
+        frame = frame.with_attributes(**{SLOPES_DEG: slopes.astype(np.float64)[:, None]})
+        return frame.with_products(slope_grid=(grid, xc, yc))
+
+
+@stage
+class Segmenter(Stage):
+    """Label points against the terrain surface: terrain, obstacle, below-terrain noise.
+
+    Height above terrain h = z - S(x, y). TERRAIN (1) when -below_threshold <= h <= t(r),
+    OBSTACLE (2) above, BELOW_TERRAIN (3) below, UNKNOWN (0) for non-finite points and
+    points outside the surface's region; t(r) = threshold + range_coefficient * r^2 with r the
+    horizontal range from sensor_origin (stereo depth noise grows with range squared).
+    """
+
+    reads = ("surface",)
+    writes_attributes = (LABELS, HEIGHTS_ABOVE_TERRAIN)
+
+    threshold: float = option(0.2, unit="m", rule=POSITIVE,
+                              help="height above the terrain that makes a point an obstacle")
+    below_threshold: float = option(0.5, unit="m", rule=POSITIVE,
+                                    help="depth below the terrain that makes a point noise")
+    range_coefficient: float = option(0.0, unit="1/m", rule=NON_NEGATIVE,
+                                      help="threshold growth per squared metre of range")
+    sensor_origin: tuple = option((0.0, 0.0, 0.0), kind=float, length=3, unit="m",
+                                  help="sensor position for the range, in cloud coordinates")
+
+    def run(self, frame: Frame) -> Frame:
+        labels, heights = segment_points(
+            frame.product("surface"), frame.positions, threshold=self.threshold,
+            below_threshold=self.below_threshold, range_coefficient=self.range_coefficient,
+            sensor_origin=self.sensor_origin,
+        )
+        frame = frame.with_attributes(**{LABELS: labels.astype(np.uint8)[:, None],
+                                         HEIGHTS_ABOVE_TERRAIN: heights[:, None]})
+        counts = np.bincount(labels, minlength=4)
+        return frame.with_note(
+            f"{self.type_name}: {counts[TerrainLabel.TERRAIN]} terrain, "
+            f"{counts[TerrainLabel.OBSTACLE]} obstacle, {counts[TerrainLabel.BELOW_TERRAIN]} "
+            f"below-terrain, {counts[TerrainLabel.UNKNOWN]} unknown point(s)"
+        )
