@@ -1,0 +1,257 @@
+"""The ``o3d-terrain eval`` sub-commands (argparse wiring; each handler returns an exit code).
+
+``eval segmentation``  ground precision/recall/F1/obstacle recall on labelled frames
+``eval terrain``       height RMSE and slope error against an exact terrain, with error maps
+``eval deviation``     the paper's Sec. VI obstacle-deviation protocol (when available)
+
+Handlers print the tables (this is the command-line layer) and write JSON/Markdown/PNG into
+``--output``. Exit codes: 0 all frames evaluated, 1 some frame failed (the others are still
+reported), 2 bad usage (raised as ConfigError and mapped by the CLI).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..errors import ConfigError, Problem
+
+EXIT_OK, EXIT_FAILURE = 0, 1
+
+
+def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add ``eval`` with its sub-commands to the CLI's sub-parsers."""
+    from .peers import PEERS
+
+    evaluate = subparsers.add_parser(
+        "eval", help="evaluate segmentation and terrain accuracy on labelled data",
+        description="Evaluate ground segmentation and terrain accuracy.")
+    sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT")
+    evaluate.set_defaults(handler=lambda args: _missing_subcommand(evaluate))
+
+    seg = sub.add_parser(
+        "segmentation", help="ground precision, recall, F1 and obstacle recall per frame",
+        description="Score ground segmentation on labelled frames: SemanticKITTI sequence "
+                    "folders (velodyne/ + labels/), LAS/LAZ files or folders (class 2 = "
+                    "ground), or synthetic:NAME[,NAME...][:stereo] scenes.")
+    seg.add_argument("datasets", nargs="+", metavar="DATASET")
+    seg.add_argument("--method", "-m", action="append", default=[], metavar="NAME",
+                     help="o3d_terrain (default) or a peer: " + ", ".join(PEERS)
+                          + " (peers need the bench extra); repeat to compare")
+    seg.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                     help="an option of segment_terrain, e.g. --option cell_size=0.25")
+    seg.add_argument("--limit", type=int, default=None, help="at most this many frames each")
+    seg.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes")
+    seg.add_argument("--output", "-o", metavar="DIR",
+                     help="write segmentation.json and segmentation.md here")
+    seg.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    seg.set_defaults(handler=run_segmentation_command)
+
+    ter = sub.add_parser(
+        "terrain", help="height RMSE and slope error against an exact terrain, with error maps",
+        description="Fit the terrain and compare it with an exact one: synthetic:NAME[,NAME..]"
+                    "[:stereo] scenes, or a DEM raster (e.g. dem.tif, sampled into clouds).")
+    ter.add_argument("source", metavar="SOURCE")
+    ter.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                     help="an option of fit_terrain, e.g. --option control_points=[25,25]")
+    ter.add_argument("--seed", type=int, default=0)
+    ter.add_argument("--dem-cell-size", type=float, default=1.0, help="DEM cell size (m)")
+    ter.add_argument("--window", type=float, default=40.0, help="DEM window side (m)")
+    ter.add_argument("--max-windows", type=int, default=16, help="DEM windows evaluated (0 = all)")
+    ter.add_argument("--density", type=float, default=4.0, help="DEM sampling (points per m²)")
+    ter.add_argument("--noise", type=float, default=0.02, help="height noise of DEM samples (m)")
+    ter.add_argument("--obstacles", type=int, default=0, help="box obstacles per DEM window")
+    ter.add_argument("--output", "-o", metavar="DIR",
+                     help="write terrain.json, terrain.md and error-map PNGs here")
+    ter.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    ter.set_defaults(handler=run_terrain_command)
+
+    _add_deviation(sub)
+    return evaluate
+
+
+def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
+    parser.print_help()
+    return 2
+
+
+def parse_options(pairs: list[str], where: str) -> dict[str, Any]:
+    """``KEY=VALUE`` strings to a dict (values parsed as YAML: numbers, lists, booleans)."""
+    options, problems = {}, []
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            problems.append(Problem(where, f"'{pair}' is not KEY=VALUE",
+                                    "write e.g. --option cell_size=0.25"))
+            continue
+        try:
+            options[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            problems.append(Problem(where, f"the value of '{key}' is not valid ({exc})"))
+    if problems:
+        raise ConfigError(problems)
+    return options
+
+
+def _check_option_names(options: dict[str, Any], function, where: str) -> None:
+    import inspect
+
+    accepted = [p for p in inspect.signature(function).parameters if p != "cloud"]
+    from ..errors import did_you_mean
+
+    problems = []
+    for key in options:
+        if key not in accepted:
+            hint = did_you_mean(key, accepted)
+            problems.append(Problem(where, f"unknown option '{key}'",
+                                    hint or f"options: {', '.join(accepted)}"))
+    if problems:
+        raise ConfigError(problems)
+
+
+# ---------------------------------------------------------------------------------------------
+# segmentation
+
+
+def run_segmentation_command(args: argparse.Namespace) -> int:
+    from .datasets import open_dataset
+    from .segmentation import OURS, evaluate_segmentation, method_names, ours, resolve_method
+
+    methods = args.method or [OURS]
+    problems = [Problem("--method", f"unknown method '{m}'", f"choose from {', '.join(method_names())}")
+                for m in methods if m not in method_names() and m != "ours"]
+    options = parse_options(args.option, "--option")
+    if options:
+        from ..api import segment_terrain
+
+        _check_option_names(options, segment_terrain, "--option")
+    if problems:
+        raise ConfigError(problems)
+    if args.limit is not None and args.limit < 1:
+        raise ConfigError(Problem("--limit", f"must be >= 1, got {args.limit}"))
+    reports = []
+    for dataset in args.datasets:
+        for method in methods:
+            frames = open_dataset(dataset, seed=args.seed, limit=args.limit)
+            if method in (OURS, "ours"):
+                run: Any = ours(**options)
+            else:
+                resolve_method(method)  # fail early with the bench-extra message
+                run = method
+            if not args.json:
+                print(f"evaluating {method} on {dataset} ...", file=sys.stderr)
+            report = evaluate_segmentation(frames, run, dataset=str(dataset))
+            report.method = OURS if method == "ours" else method
+            reports.append(report)
+            if not args.json:
+                print(report.to_markdown())
+                print()
+    failed = any(r.failures for r in reports)
+    if args.json:
+        print(json.dumps([json.loads(r.to_json()) for r in reports], indent=2))
+    if args.output:
+        out = Path(args.output)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "segmentation.json").write_text(
+            json.dumps([json.loads(r.to_json()) for r in reports], indent=2) + "\n")
+        (out / "segmentation.md").write_text(
+            "\n\n".join(r.to_markdown() for r in reports) + "\n")
+        if not args.json:
+            print(f"wrote {out / 'segmentation.json'} and {out / 'segmentation.md'}",
+                  file=sys.stderr)
+    return EXIT_FAILURE if failed else EXIT_OK
+
+
+# ---------------------------------------------------------------------------------------------
+# terrain
+
+
+def run_terrain_command(args: argparse.Namespace) -> int:
+    from .terrain import (default_fitter, evaluate_dem_terrain, evaluate_synthetic_terrain,
+                          write_error_map)
+
+    options = parse_options(args.option, "--option")
+    if options:
+        from ..api import fit_terrain
+
+        _check_option_names(options, fit_terrain, "--option")
+    fitter = default_fitter(**options)
+    source = str(args.source)
+    if source.startswith("synthetic"):
+        from .datasets import synthetic_scene_names
+
+        parts = source.split(":")
+        names = [n for n in (parts[1].split(",") if len(parts) > 1 else []) if n]
+        if not names or names == ["all"]:
+            names = list(synthetic_scene_names())
+        sensor = parts[2] if len(parts) > 2 else "lidar"
+        report = evaluate_synthetic_terrain(names, fitter, sensor=sensor, seed=args.seed)
+        maps = {r.name: (r.height_error, r.slope_error, True) for r in report.results}
+    else:
+        path = Path(source)
+        if not path.exists():
+            raise ConfigError(Problem("SOURCE", f"{path}: no such file",
+                                      "give a DEM raster (.tif) or synthetic:NAME"))
+        report = evaluate_dem_terrain(
+            path, fitter, cell_size=args.dem_cell_size, window=args.window,
+            max_windows=args.max_windows or None, density=args.density, noise=args.noise,
+            obstacles=args.obstacles, seed=args.seed)
+        maps = {path.stem: (report.maps["height_error"], report.maps["slope_error"], False)}
+    if args.json:
+        print(report.to_json())
+    else:
+        print(report.to_markdown())
+    if args.output:
+        out = Path(args.output)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "terrain.json").write_text(report.to_json() + "\n")
+        (out / "terrain.md").write_text(report.to_markdown() + "\n")
+        for name, (height, slope, is_xy) in maps.items():
+            write_error_map(out / f"error_map_{name}.png", height, slope, grid_is_xy=is_xy)
+        if not args.json:
+            print(f"wrote terrain.json, terrain.md and {len(maps)} error map(s) to {out}",
+                  file=sys.stderr)
+    return EXIT_FAILURE if report.failures else EXIT_OK
+
+
+# ---------------------------------------------------------------------------------------------
+# deviation (Sec. VI protocol, provided by o3d_terrain.deviation)
+
+
+def _add_deviation(sub: argparse._SubParsersAction) -> None:
+    try:
+        from .. import deviation
+    except ImportError:
+        return
+    add = getattr(deviation, "add_deviation_arguments", None)
+    dev = sub.add_parser(
+        "deviation", help="the paper's Sec. VI protocol: surface deviation caused by an obstacle",
+        description="Broggi et al. 2013 Sec. VI: flat road, one box obstacle; maximum deviation "
+                    "of the fitted surface as a share of the obstacle height.")
+    if add is not None:
+        add(dev)
+    dev.add_argument("--output", "-o", metavar="DIR", default=None,
+                     help="write the deviation table and plot here")
+    dev.set_defaults(handler=run_deviation_command)
+
+
+def run_deviation_command(args: argparse.Namespace) -> int:
+    from .. import deviation
+
+    kwargs = {k: v for k, v in vars(args).items()
+              if k not in ("handler", "command", "eval_command", "verbose", "output")}
+    import inspect
+
+    accepted = inspect.signature(deviation.run_deviation_protocol).parameters
+    result = deviation.run_deviation_protocol(**{k: v for k, v in kwargs.items() if k in accepted})
+    if args.output:
+        deviation.write_deviation_outputs(result, Path(args.output))
+        print(f"wrote the deviation outputs to {args.output}", file=sys.stderr)
+    text = getattr(result, "to_markdown", None)
+    print(text() if callable(text) else result)
+    return EXIT_OK

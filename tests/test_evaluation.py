@@ -1,0 +1,351 @@
+"""Evaluation: metrics on hand-made cases, dataset readers on tiny generated files, batch
+robustness (a bad frame is reported and skipped), the eval commands, real-data checks."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from o3d_terrain.errors import InputError
+from o3d_terrain.evaluation import datasets as ds
+from o3d_terrain.evaluation.metrics import (
+    SegmentationCounts,
+    height_rmse,
+    segmentation_counts,
+    slope_deg_from_gradient,
+    slope_error_deg,
+)
+from o3d_terrain.evaluation.segmentation import evaluate_segmentation
+from o3d_terrain.evaluation.terrain import (
+    compare_surface,
+    dem_slope_deg,
+    evaluate_dem_terrain,
+    write_error_map,
+)
+
+DATA = Path(os.environ.get("O3D_TERRAIN_DATA", Path(__file__).resolve().parents[1].parent
+                           / "shared" / "data"))
+
+
+# ---------------------------------------------------------------------------------------------
+# metrics
+
+
+def test_counts_on_a_hand_made_case():
+    truth = np.array([1, 1, 1, 0, 0, 0, 1, 0], bool)
+    pred = np.array([1, 1, 0, 1, 0, 0, 1, 1], bool)
+    scored = np.array([1, 1, 1, 1, 1, 1, 0, 0], bool)  # the last two do not count
+    obstacle = np.array([0, 0, 0, 1, 1, 0, 0, 1], bool)
+    c = segmentation_counts(pred, truth, scored=scored, obstacle=obstacle)
+    assert (c.true_positive, c.false_positive, c.false_negative, c.true_negative) == (2, 1, 1, 2)
+    assert c.precision == pytest.approx(2 / 3)
+    assert c.recall == pytest.approx(2 / 3)
+    assert c.f1 == pytest.approx(2 / 3)
+    assert c.accuracy == pytest.approx(4 / 6)
+    # obstacles scored: points 3 (called ground) and 4 (not): half detected
+    assert (c.obstacle_points, c.obstacle_detected) == (2, 1)
+    assert c.obstacle_recall == pytest.approx(0.5)
+
+
+def test_perfect_and_empty_classifications():
+    truth = np.array([True, False, True])
+    perfect = segmentation_counts(truth.copy(), truth)
+    assert perfect.precision == perfect.recall == perfect.f1 == 1.0
+    nothing = segmentation_counts(np.zeros(3, bool), truth)
+    assert math.isnan(nothing.precision) and nothing.recall == 0.0 and nothing.f1 == 0.0
+    assert math.isnan(segmentation_counts(truth, truth).obstacle_recall)  # no obstacles
+
+
+def test_f1_is_the_harmonic_mean_and_counts_add():
+    rng = np.random.default_rng(1)
+    truth, pred = rng.random(500) < 0.6, rng.random(500) < 0.5
+    c = segmentation_counts(pred, truth)
+    assert c.f1 == pytest.approx(2 * c.precision * c.recall / (c.precision + c.recall))
+    a = segmentation_counts(pred[:200], truth[:200])
+    b = segmentation_counts(pred[200:], truth[200:])
+    assert a + b == c
+    assert isinstance(a + b, SegmentationCounts)
+
+
+def test_masks_are_checked():
+    with pytest.raises(InputError, match="must be bool"):
+        segmentation_counts(np.array([0, 1]), np.array([True, False]))
+    with pytest.raises(InputError, match=r"must be \(2,\)"):
+        segmentation_counts(np.array([True]), np.array([True, False]))
+
+
+def test_height_rmse_and_slope_errors():
+    assert height_rmse(np.array([1.0, 2.0, np.nan]), np.array([0.0, 0.0, 5.0])) == pytest.approx(
+        math.sqrt((1 + 4) / 2))
+    assert slope_deg_from_gradient(np.array([0.2]), np.array([0.0]))[0] == pytest.approx(
+        math.degrees(math.atan(0.2)))
+    assert slope_deg_from_gradient(np.array([1.0]), np.array([1.0]))[0] == pytest.approx(
+        math.degrees(math.atan(math.sqrt(2))))
+    e = slope_error_deg(np.array([10.0, 12.0, 9.0]), np.array([10.0, 10.0, 10.0]))
+    assert e["mean_abs"] == pytest.approx(1.0) and e["max_abs"] == pytest.approx(2.0)
+    assert e["rmse"] == pytest.approx(math.sqrt(5 / 3))
+
+
+# ---------------------------------------------------------------------------------------------
+# dataset readers on tiny generated files
+
+
+def _fake_kitti(folder: Path, frames: int = 2, points: int = 50, bad_last: bool = False):
+    rng = np.random.default_rng(0)
+    (folder / "velodyne").mkdir(parents=True)
+    (folder / "labels").mkdir()
+    for i in range(frames):
+        xyz = rng.uniform(-10, 10, (points, 4)).astype(np.float32)
+        labels = np.array([40, 72, 10, 70, 0, 1, 48, 50] * (points // 8 + 1), np.uint32)[:points]
+        labels |= np.uint32(7 << 16)  # an instance id in the upper 16 bits
+        xyz.tofile(folder / "velodyne" / f"{i:06d}.bin")
+        if bad_last and i == frames - 1:
+            labels = labels[:-3]  # wrong length
+        labels.tofile(folder / "labels" / f"{i:06d}.label")
+
+
+def test_semantic_kitti_reader(tmp_path):
+    _fake_kitti(tmp_path, frames=2, points=16)
+    frames, failures = ds.iter_frames(ds.open_dataset(tmp_path))
+    assert not failures and [f.name for f in frames] == ["000000", "000001"]
+    f = frames[0]
+    expected_ground = np.isin([40, 72, 10, 70, 0, 1, 48, 50] * 2, ds.SEMANTIC_KITTI_GROUND)
+    assert np.array_equal(f.is_ground, expected_ground)
+    assert np.array_equal(f.scored, ~np.isin([40, 72, 10, 70, 0, 1, 48, 50] * 2, [0, 1]))
+    assert np.array_equal(f.obstacle, np.isin([40, 72, 10, 70, 0, 1, 48, 50] * 2, [10, 50]))
+    assert f.positions.dtype == np.float64 and f.positions.shape == (16, 3)
+
+
+def test_a_bad_frame_is_reported_and_skipped(tmp_path):
+    _fake_kitti(tmp_path, frames=3, points=16, bad_last=True)
+
+    def everything_is_ground(positions):
+        return np.ones(len(positions), bool)
+
+    report = evaluate_segmentation(ds.open_dataset(tmp_path), everything_is_ground)
+    assert [r.frame for r in report.frames] == ["000000", "000001"]
+    assert len(report.failures) == 1 and report.failures[0].name == "000002"
+    assert "labels" in report.failures[0].reason
+    assert "skipped `000002`" in report.to_markdown()
+    assert json.loads(report.to_json())["failures"][0]["name"] == "000002"
+    # everything called ground: recall 1, precision = ground share of the scored points
+    assert report.total.recall == 1.0
+    assert report.total.precision == pytest.approx(3 / 6)  # 40, 72, 48 of 40, 72, 10, 70, 48, 50
+
+
+def test_a_failing_method_is_reported_per_frame(tmp_path):
+    _fake_kitti(tmp_path, frames=2, points=16)
+    calls = []
+
+    def flaky(positions):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("solver diverged")
+        return np.zeros(len(positions), bool)
+
+    report = evaluate_segmentation(ds.open_dataset(tmp_path), flaky)
+    assert len(report.frames) == 1 and "solver diverged" in report.failures[0].reason
+
+    def wrong_shape(positions):
+        return np.zeros(3, bool)
+
+    report = evaluate_segmentation(ds.open_dataset(tmp_path), wrong_shape)
+    assert not report.frames and "must return" in report.failures[0].reason
+
+
+def _tiny_las(path: Path, classes, *, feet: bool = False):
+    laspy = pytest.importorskip("laspy")
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([500000.0, 4000000.0, 0.0])
+    if feet:
+        from laspy.vlrs.known import GeoKeyDirectoryVlr, GeoKeyEntryStruct
+
+        vlr = GeoKeyDirectoryVlr()
+        vlr.geo_keys_header = GeoKeyEntryStruct(1, 1, 0, 1)
+        vlr.geo_keys = [GeoKeyEntryStruct(3076, 0, 1, 9002)]  # ProjLinearUnits: foot
+        header.vlrs.append(vlr)
+    las = laspy.LasData(header)
+    n = len(classes)
+    las.x = 500000.0 + np.arange(n)
+    las.y = 4000000.0 + np.arange(n) * 2
+    las.z = np.full(n, 100.0)
+    las.classification = np.asarray(classes, np.uint8)
+    las.write(str(path))
+
+
+def test_las_reader_classes_and_metres(tmp_path):
+    _tiny_las(tmp_path / "metres.las", [2, 2, 1, 6, 7, 0, 5, 2])
+    frame = ds.read_las_frame(tmp_path / "metres.las")
+    assert np.array_equal(frame.is_ground, [1, 1, 0, 0, 0, 0, 0, 1])
+    assert np.array_equal(frame.scored, [1, 1, 1, 1, 0, 0, 1, 1])  # 7 noise, 0 never classified
+    assert np.array_equal(frame.obstacle, [0, 0, 0, 1, 0, 0, 1, 0])
+    assert frame.metres_per_unit == 1.0 and frame.kind == "aerial"
+    assert frame.positions[0, 0] == pytest.approx(500000.0)
+
+
+def test_las_in_feet_is_converted(tmp_path):
+    _tiny_las(tmp_path / "feet.las", [2, 1, 2], feet=True)
+    frame = ds.read_las_frame(tmp_path / "feet.las")
+    assert frame.metres_per_unit == pytest.approx(0.3048)
+    assert frame.positions[1, 0] - frame.positions[0, 0] == pytest.approx(0.3048)
+    assert frame.positions[0, 2] == pytest.approx(100.0 * 0.3048)
+    assert any("feet" in n for n in frame.notes)
+
+
+def test_las_folder_keeps_going_past_a_corrupt_file(tmp_path):
+    _tiny_las(tmp_path / "a.las", [2, 1, 2, 2])
+    (tmp_path / "b.las").write_bytes(b"not a las file at all")
+    frames, failures = ds.iter_frames(ds.open_dataset(tmp_path))
+    assert [f.name for f in frames] == ["a.las"]
+    assert failures[0].name == "b.las" and "b.las" in failures[0].reason
+
+
+def test_unknown_sources_name_the_fix(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        ds.open_dataset(tmp_path / "missing")
+    (tmp_path / "x.txt").write_text("1 2 3")
+    with pytest.raises(InputError, match="SemanticKITTI"):
+        ds.open_dataset(tmp_path / "x.txt")
+
+
+def test_synthetic_frames_have_truth():
+    pytest.importorskip("o3d_terrain.synthetic")
+    frames, failures = ds.iter_frames(ds.synthetic_frames(["flat"], seed=0))
+    assert not failures
+    f = frames[0]
+    assert f.obstacle is not None and np.array_equal(f.is_ground, ~f.obstacle)
+    terrain = f.positions[f.is_ground & f.scored]
+    # the exact terrain agrees with the terrain points to the range noise
+    z = f.terrain(terrain[:, 0], terrain[:, 1])
+    assert np.nanmedian(np.abs(z - terrain[:, 2])) < 0.05
+    bad = list(ds.synthetic_frames(["no_such_scene"]))
+    assert isinstance(bad[0], ds.FrameFailure)
+
+
+# ---------------------------------------------------------------------------------------------
+# terrain evaluation
+
+
+class _Plane:
+    """z = a x + b y + c with its exact slope."""
+
+    def __init__(self, a, b, c=0.0):
+        self.a, self.b, self.c = a, b, c
+
+    def __call__(self, x, y):
+        return self.a * np.asarray(x) + self.b * np.asarray(y) + self.c
+
+    def slope_deg(self, x, y):
+        return np.full(np.shape(x), math.degrees(math.atan(math.hypot(self.a, self.b))))
+
+
+def test_compare_surface_oracle():
+    x, y = np.meshgrid(np.arange(5.0), np.arange(4.0), indexing="ij")
+    truth = 0.2 * x
+    slope = np.full(x.shape, math.degrees(math.atan(0.2)))
+    exact = compare_surface("plane", _Plane(0.2, 0.0), x, y, truth, slope, points=1, seconds=0)
+    assert exact.height_rmse == pytest.approx(0.0, abs=1e-12)
+    assert exact.slope["max_abs"] == pytest.approx(0.0, abs=1e-9)
+    shifted = compare_surface("shift", _Plane(0.2, 0.0, 0.1), x, y, truth, slope, points=1,
+                              seconds=0)
+    assert shifted.height_rmse == pytest.approx(0.1) and shifted.height_bias == pytest.approx(0.1)
+
+
+def test_dem_slope_of_a_plane():
+    rows, cols = np.mgrid[0:20, 0:30].astype(float)
+    dem = 0.1 * cols + 0.3 * rows
+    assert np.allclose(dem_slope_deg(dem, 1.0), math.degrees(math.atan(math.hypot(0.1, 0.3))))
+    assert np.allclose(dem_slope_deg(dem * 2, 2.0), math.degrees(math.atan(math.hypot(0.1, 0.3))))
+
+
+def test_dem_evaluation_with_an_exact_fitter(tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    rows, cols = np.mgrid[0:40, 0:40].astype(np.float32)
+    dem = (100 + 0.05 * cols - 0.1 * rows).astype(np.float32)
+    path = tmp_path / "dem.tif"
+    assert cv2.imwrite(str(path), dem)
+
+    def plane_fitter(positions):  # least-squares plane: exact on a planar DEM without noise
+        a = np.column_stack([positions[:, 0], positions[:, 1], np.ones(len(positions))])
+        coef = np.linalg.lstsq(a, positions[:, 2], rcond=None)[0]
+        return _Plane(*coef)
+
+    report = evaluate_dem_terrain(path, plane_fitter, window=20, max_windows=None, noise=0.0)
+    assert len(report.results) == 4 and not report.failures
+    assert report.overall()["height_rmse_m"] < 1e-4  # float32 raster
+    assert report.overall()["slope_max_abs_deg"] < 1e-3  # float32 raster
+    png = write_error_map(tmp_path / "map.png", report.maps["height_error"],
+                          report.maps["slope_error"], grid_is_xy=False)
+    assert cv2.imread(str(png)) is not None
+
+
+# ---------------------------------------------------------------------------------------------
+# the eval commands
+
+
+def _cli(argv):
+    from o3d_terrain.cli import main
+
+    return main(argv)
+
+
+def test_eval_segmentation_command_writes_json_and_reports_bad_frames(tmp_path, capsys):
+    pytest.importorskip("o3d_terrain.api")
+    data = tmp_path / "seq"
+    _fake_kitti(data, frames=2, points=16, bad_last=True)
+    out = tmp_path / "out"
+    code = _cli(["eval", "segmentation", str(data), "-m", "ransac_plane", "-o", str(out)])
+    assert code == 1  # one frame failed; the others are reported
+    result = json.loads((out / "segmentation.json").read_text())
+    assert result[0]["method"] == "ransac_plane"
+    assert len(result[0]["frames"]) == 1 and result[0]["failures"][0]["name"] == "000001"
+    assert "skipped `000001`" in (out / "segmentation.md").read_text()
+
+
+def test_eval_segmentation_rejects_unknown_method(tmp_path, capsys):
+    _fake_kitti(tmp_path / "seq", frames=1, points=16)
+    assert _cli(["eval", "segmentation", str(tmp_path / "seq"), "-m", "patchwork"]) == 2
+    assert "unknown method 'patchwork'" in capsys.readouterr().err
+
+
+def test_missing_peer_names_the_bench_extra(monkeypatch):
+    from o3d_terrain.evaluation import peers
+
+    real = peers.importlib.util.find_spec
+    monkeypatch.setattr(peers.importlib.util, "find_spec",
+                        lambda name: None if name == "CSF" else real(name))
+    with pytest.raises(InputError, match=r"o3d_terrain\[bench\]"):
+        peers.make_peer("csf")
+
+
+# ---------------------------------------------------------------------------------------------
+# real data (skipped without ../shared/data)
+
+
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"real data folder {DATA} is absent")
+
+
+@pytest.mark.realdata
+@needs_data
+def test_real_kitti_frame_matches_the_readme():
+    frames, failures = ds.iter_frames(
+        ds.semantic_kitti_frames(DATA / "kitti_seq00_lidar", limit=1))
+    assert not failures
+    f = frames[0]
+    assert len(f) == 124_668 and int(f.is_ground.sum()) == 67_873  # figures of data/README.md
+
+
+@pytest.mark.realdata
+@needs_data
+def test_real_las_feet_tiles_are_detected():
+    feet = {"autzen_trim.laz", "4_6_crop.las", "file_with_both_wkt_and_geotiff_vlrs.las"}
+    for path in sorted((DATA / "las").iterdir()):
+        if path.name in feet or path.name == "hexbin-crop.las":
+            frame = ds.read_las_frame(path)
+            assert (frame.metres_per_unit != 1.0) == (path.name in feet), path.name
