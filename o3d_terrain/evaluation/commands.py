@@ -226,32 +226,37 @@ def run_terrain_command(args: argparse.Namespace) -> int:
 def _add_deviation(sub: argparse._SubParsersAction) -> None:
     try:
         from .. import deviation
-    except ImportError:
+    except ImportError:  # not in this build
         return
-    add = getattr(deviation, "add_deviation_arguments", None)
     dev = sub.add_parser(
         "deviation", help="the paper's Sec. VI protocol: surface deviation caused by an obstacle",
-        description="Broggi et al. 2013 Sec. VI: flat road, one box obstacle; maximum deviation "
-                    "of the fitted surface as a share of the obstacle height.")
-    if add is not None:
-        add(dev)
+        description="Broggi et al. 2013 Sec. VI: flat road, one box obstacle at (11, 0) in a "
+                    "22 m x 22 m area; maximum deviation of the fitted surface as a share of the "
+                    "obstacle height, for each width, height, control-point count and method.")
+    dev.add_argument("--widths", type=float, nargs="+", metavar="M",
+                     help="obstacle widths in metres (default: the paper's)")
+    dev.add_argument("--heights", type=float, nargs="+", metavar="M",
+                     help="obstacle heights in metres (default: the paper's)")
+    dev.add_argument("--control-points", type=int, nargs="+", metavar="N",
+                     help="control points per axis to compare (default: 5 25)")
+    dev.add_argument("--methods", nargs="+", metavar="NAME",
+                     help="fitting methods (default: robust paper)")
+    dev.add_argument("--cell-size", type=float, help="grid cell size in metres (default 0.5)")
     dev.add_argument("--output", "-o", metavar="DIR", default=None,
                      help="write the deviation table and plot here")
     dev.set_defaults(handler=run_deviation_command)
+    del deviation
 
 
 def run_deviation_command(args: argparse.Namespace) -> int:
     from .. import deviation
 
-    kwargs = {k: v for k, v in vars(args).items()
-              if k not in ("handler", "command", "eval_command", "verbose", "output")}
-    import inspect
-
-    accepted = inspect.signature(deviation.run_deviation_protocol).parameters
-    result = deviation.run_deviation_protocol(**{k: v for k, v in kwargs.items() if k in accepted})
+    options = {name: getattr(args, name) for name in
+               ("widths", "heights", "control_points", "methods", "cell_size")
+               if getattr(args, name, None) is not None}
+    result = deviation.run_deviation_protocol(**options)
+    print(result.table() if hasattr(result, "table") else result)
     if args.output:
-        deviation.write_deviation_outputs(result, Path(args.output))
-        print(f"wrote the deviation outputs to {args.output}", file=sys.stderr)
-    text = getattr(result, "to_markdown", None)
-    print(text() if callable(text) else result)
+        written = deviation.write_deviation_outputs(result, Path(args.output))
+        print(f"wrote {len(written)} file(s) to {args.output}", file=sys.stderr)
     return EXIT_OK
