@@ -275,6 +275,9 @@ class GridBasis:
         hx = (x_max - x_min) / max(n0 - 1, 1)
         hy = (y_max - y_min) / max(n1 - 1, 1)
         self.penalty_weights = (hy * hy / (hx * hx), 2.0, hx * hx / (hy * hy))
+        p = self.degree
+        self.greville_x = np.array([self.knots_x[a + 1:a + p + 1].mean() for a in range(n0)])
+        self.greville_y = np.array([self.knots_y[b + 1:b + p + 1].mean() for b in range(n1)])
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray | None = None,
                  mask: np.ndarray | None = None) -> np.ndarray:
@@ -329,7 +332,7 @@ class GridBasis:
         if smoothing > 0:
             data_per_ctrl = w.sum() / (self.n0 * self.n1)
             _tk.add_thin_plate_band(band, self.n0, self.n1, smoothing * max(data_per_ctrl, 1e-12),
-                                    *self.penalty_weights)
+                                    *self.penalty_weights, self.greville_x, self.greville_y)
         band[0] += ridge * scale
         q, ok = _tk.solve_band_cholesky(band, rhs)
         if not ok:  # numerically indefinite: fall back to LAPACK, which reports the reason

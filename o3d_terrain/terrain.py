@@ -158,13 +158,14 @@ def fit_grid_detailed(
 # the two loops
 
 
-def remap_weights(w: np.ndarray, xl: np.ndarray, yl: np.ndarray, basis: GridBasis) -> np.ndarray:
-    """Control-point weights R from sample weights W: W averaged over each control point's
-    support (the basis functions as averaging kernels), i.e. W downsampled onto the control
-    grid. Control points with no weight under them get the mean."""
-    num = basis.project(w)
-    den = basis.project(np.ones_like(w))
-    return num / np.maximum(den, 1e-12)
+def remap_weights(w: np.ndarray, valid: np.ndarray, basis: GridBasis,
+                  empty: float = 1.0) -> np.ndarray:
+    """Control-point weights R from sample weights W: W averaged over the valid samples in each
+    control point's support (the basis functions as averaging kernels), i.e. W downsampled onto
+    the control grid. Control points with no valid sample under them get ``empty``."""
+    num = basis.project(np.where(valid, w, 0.0))
+    den = basis.project(valid.astype(np.float64))
+    return np.where(den > 1e-9, num / np.maximum(den, 1e-12), empty)
 
 
 def _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational, max_iterations):
@@ -181,7 +182,7 @@ def _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational, max_iter
         iteration += 1
         basis = GridBasis(xl, yl, n, degree, region_local)
         r = np.ones((n[0], n[1])) if (r_samples is None or not rational) else \
-            remap_weights(r_samples, xl, yl, basis)
+            remap_weights(r_samples, valid, basis)
         q = basis.solve_two_pass(p, w)  # spline_fitting(P, W, d, dn0, dn1)
         s = basis.evaluate(q, r)
         dz = p - s
@@ -193,7 +194,7 @@ def _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational, max_iter
         wn = np.where(valid, np.minimum(wn, w_cap), 0.0)
         w = wn
         r_samples = w
-        r = remap_weights(w, xl, yl, basis) if rational else np.ones_like(q)
+        r = remap_weights(w, valid, basis) if rational else np.ones_like(q)
         s = basis.evaluate(q, r)
         dz = p - s
         move = valid & (dz > 0)
@@ -208,7 +209,7 @@ def _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational, max_iter
         n = [min(n[0] + 1, n_max[0]), min(n[1] + 1, n_max[1])]
     basis = GridBasis(xl, yl, n_max, degree, region_local)
     q = basis.solve_two_pass(p, w)
-    r = remap_weights(w, xl, yl, basis) if rational else np.ones_like(q)
+    r = remap_weights(w, valid, basis) if rational else np.ones_like(q)
     s = basis.evaluate(q, r)
     th = records[-1].threshold
     outliers = valid & (z - s > 2 * th)
@@ -265,7 +266,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
         for _ in range(passes):
             iteration += 1
             r = np.ones(n) if (r_samples is None or not rational) else \
-                0.5 + 0.5 * remap_weights(r_samples, xl, yl, basis)
+                0.5 + 0.5 * remap_weights(r_samples, valid, basis)
             q = basis.solve_tensor(p, w, r, smoothing)
             s = basis.evaluate(q, r, valid)
             res = z - s  # residuals of the original samples, not the equalized ones
@@ -292,7 +293,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             if iteration >= max_iterations and final:
                 break
     basis_final = basis
-    rr = np.ones(n) if not rational else 0.5 + 0.5 * remap_weights(r_samples, xl, yl, basis)
+    rr = np.ones(n) if not rational else 0.5 + 0.5 * remap_weights(r_samples, valid, basis)
     q = basis_final.solve_tensor(p, w, rr, smoothing)
     s = basis_final.evaluate(q, rr, valid)
     outliers = valid & (z - s > above_k * noise)

@@ -62,14 +62,24 @@ def assemble_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_values
 
 
 @numba.njit(cache=True)
-def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy):
+def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, greville_x,
+                        greville_y):
     """Add ``scale`` times a discrete thin-plate energy of the control points to the band.
 
-    Energy = weight_xx sum (Q[a-1,b] - 2Q[a,b] + Q[a+1,b])^2
-           + weight_yy sum (Q[a,b-1] - 2Q[a,b] + Q[a,b+1])^2
-           + weight_xy sum (Q[a,b] - Q[a+1,b] - Q[a,b+1] + Q[a+1,b+1])^2.
-    Its null space is the planes, so data-free control points continue the surface linearly.
+    Energy = weight_xx sum (h_x^2 d2Q/dx2)^2 + weight_yy sum (h_y^2 d2Q/dy2)^2
+           + weight_xy sum (h_x h_y d2Q/dxdy)^2,
+    with divided differences of Q placed at the Greville abscissae (``greville_x``/``_y``,
+    unevenly spaced near clamped ends) and h the interior spacing, so that for uniform spacing
+    the stencils are (1, -2, 1) and (1, -1, -1, 1). Its null space is exactly the planes
+    (a B-spline reproduces a plane with Q = plane at the Greville abscissae), so data-free
+    control points continue the surface linearly and planes are fitted without bias.
     """
+    hx = greville_x[min(2, n0 - 1)] - greville_x[min(1, n0 - 2)] if n0 > 3 else 1.0
+    hy = greville_y[min(2, n1 - 1)] - greville_y[min(1, n1 - 2)] if n1 > 3 else 1.0
+    if n0 > 2:
+        hx = (greville_x[n0 - 1] - greville_x[0]) / (n0 - 1)
+    if n1 > 2:
+        hy = (greville_y[n1 - 1] - greville_y[0]) / (n1 - 1)
     idx = np.empty(4, np.int64)
     coef = np.empty(4)
     bandwidth = band.shape[0] - 1
@@ -101,27 +111,35 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy):
                     idx[0] = (a - 1) * n1 + b
                     idx[1] = a * n1 + b
                     idx[2] = (a + 1) * n1 + b
-                    coef[0] = 1.0
-                    coef[1] = -2.0
-                    coef[2] = 1.0
+                    d0 = greville_x[a] - greville_x[a - 1]
+                    d1 = greville_x[a + 1] - greville_x[a]
+                    f = 2.0 * hx * hx / (d0 + d1)
+                    coef[0] = f / d0
+                    coef[1] = -f * (1.0 / d0 + 1.0 / d1)
+                    coef[2] = f / d1
                 elif kind == 1:
                     n = 3
                     idx[0] = a * n1 + b - 1
                     idx[1] = a * n1 + b
                     idx[2] = a * n1 + b + 1
-                    coef[0] = 1.0
-                    coef[1] = -2.0
-                    coef[2] = 1.0
+                    d0 = greville_y[b] - greville_y[b - 1]
+                    d1 = greville_y[b + 1] - greville_y[b]
+                    f = 2.0 * hy * hy / (d0 + d1)
+                    coef[0] = f / d0
+                    coef[1] = -f * (1.0 / d0 + 1.0 / d1)
+                    coef[2] = f / d1
                 else:
                     n = 4
                     idx[0] = a * n1 + b
                     idx[1] = a * n1 + b + 1
                     idx[2] = (a + 1) * n1 + b
                     idx[3] = (a + 1) * n1 + b + 1
-                    coef[0] = 1.0
-                    coef[1] = -1.0
-                    coef[2] = -1.0
-                    coef[3] = 1.0
+                    f = hx * hy / ((greville_x[a + 1] - greville_x[a])
+                                   * (greville_y[b + 1] - greville_y[b]))
+                    coef[0] = f
+                    coef[1] = -f
+                    coef[2] = -f
+                    coef[3] = f
                 for u in range(n):
                     for s in range(n):
                         d = idx[s] - idx[u]

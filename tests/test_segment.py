@@ -1,0 +1,118 @@
+"""Segmentation and the Open3D drop-in functions."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from o3d_terrain.api import fit_terrain, segment_terrain
+from o3d_terrain.errors import InputError
+from o3d_terrain.frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG
+from o3d_terrain.segment import TerrainLabel, segment_points
+from o3d_terrain.spline import make_lsq_surface
+from o3d_terrain.stages import GridQuantize, RationalBSplineTerrain, Segmenter, SlopeEstimator
+
+
+def scene(seed=0, n=30_000):
+    """Sloped ground (z = 0.1 x) with a box obstacle and a few points below the ground."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0, 30, n)
+    y = rng.uniform(-10, 10, n)
+    z = 0.1 * x + rng.normal(0, 0.01, n)
+    box = (np.abs(x - 15) < 1.0) & (np.abs(y) < 1.0)
+    z[box] += rng.uniform(0.5, 1.5, box.sum())
+    below = rng.choice(np.flatnonzero(~box), 50, replace=False)
+    z[below] -= 1.0
+    truth = np.full(n, TerrainLabel.TERRAIN)
+    truth[box] = TerrainLabel.OBSTACLE
+    truth[below] = TerrainLabel.BELOW_TERRAIN
+    return np.c_[x, y, z], truth
+
+
+def plane_surface():
+    x = np.linspace(0, 30, 31)
+    y = np.linspace(-10, 10, 21)
+    return make_lsq_surface(x, y, 0.1 * x[:, None] + 0 * y[None, :], control_points=(5, 5))
+
+
+def test_labels_follow_the_height_rule():
+    s = plane_surface()
+    pts = np.array([[5, 0, 0.5 + 0.1], [5, 0, 0.5 + 0.3], [5, 0, 0.5 - 0.6], [5, 0, 0.5 - 0.4],
+                    [40, 0, 0], [np.nan, 0, 0]])
+    labels, h = segment_points(s, pts, threshold=0.2, below_threshold=0.5)
+    assert labels.tolist() == [1, 2, 3, 1, 0, 0]
+    np.testing.assert_allclose(h[:4], [0.1, 0.3, -0.6, -0.4], atol=1e-9)
+
+
+def test_threshold_grows_with_range_squared():
+    s = plane_surface()
+    pts = np.array([[2.0, 0, 0.2 + 0.25], [20.0, 0, 2.0 + 0.25]])
+    labels, _ = segment_points(s, pts, threshold=0.2)
+    assert labels.tolist() == [2, 2]
+    labels, _ = segment_points(s, pts, threshold=0.2, range_coefficient=0.001)
+    assert labels.tolist() == [2, 1]  # 0.2 + 0.001 * 400 = 0.6 m at 20 m
+
+
+def test_segment_terrain_is_a_segment_plane_drop_in():
+    pts, truth = scene()
+    legacy = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    surface, inliers = segment_terrain(legacy, distance_threshold=0.2)
+    assert inliers.dtype == np.int64
+    ground = legacy.select_by_index(inliers.tolist())
+    assert len(ground.points) == len(inliers)
+    mask = np.zeros(len(pts), bool)
+    mask[inliers] = True
+    is_ground = truth == TerrainLabel.TERRAIN
+    assert (mask & is_ground).sum() / is_ground.sum() > 0.99
+    assert not mask[truth != TerrainLabel.TERRAIN].any()
+    np.testing.assert_allclose(surface.slope_deg(10.0, 0.0), np.degrees(np.arctan(0.1)), atol=0.5)
+
+
+def test_tensor_cloud_numpy_and_auto_threshold_agree():
+    pts, _ = scene(1)
+    tensor = o3d.t.geometry.PointCloud(o3d.core.Tensor(pts))
+    _, a = segment_terrain(tensor)
+    _, b = segment_terrain(pts)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_non_finite_points_are_ignored_and_indices_stay_aligned():
+    pts, truth = scene(2)
+    bad = pts.copy()
+    bad[::100] = np.nan
+    bad[1::100, 2] = np.inf
+    _, inliers = segment_terrain(bad, distance_threshold=0.2)
+    assert np.isfinite(bad[inliers]).all()
+    _, clean = segment_terrain(pts, distance_threshold=0.2)
+    assert np.setdiff1d(inliers, clean).size < 0.01 * len(inliers)
+
+
+def test_bad_clouds_give_clear_errors():
+    with pytest.raises(InputError, match="empty"):
+        segment_terrain(np.zeros((0, 3)))
+    with pytest.raises(InputError, match="no finite point"):
+        fit_terrain(np.full((10, 3), np.nan))
+    with pytest.raises(InputError, match="degenerate"):
+        fit_terrain(np.random.default_rng(0).normal(size=(100, 3)), region=(0, 0, -1, 1))
+    with pytest.raises(InputError, match="degenerate"):
+        fit_terrain(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)])
+    with pytest.raises(InputError, match="too few valid cells"):
+        fit_terrain(np.array([[0, 0, 0], [10, 10, 0.0]]))
+
+
+def test_stages_write_declared_products_and_attributes():
+    pts, truth = scene(3, n=10_000)
+    frame = GridQuantize(cell_size=0.5)(pts)
+    frame = RationalBSplineTerrain()(frame)
+    frame = SlopeEstimator()(frame)
+    frame = Segmenter(threshold=0.2)(frame)
+    assert {"surface", "slope_grid"} <= set(frame.products)
+    assert {LABELS, HEIGHTS_ABOVE_TERRAIN, SLOPES_DEG} <= set(frame.attribute_names())
+    assert frame.cloud.point[LABELS].shape == (10_000, 1)
+    labels = frame.attribute(LABELS)
+    assert (labels[truth == TerrainLabel.OBSTACLE] == TerrainLabel.OBSTACLE).mean() > 0.95
+    slope_grid, xc, yc = frame.product("slope_grid")
+    assert slope_grid.shape == (xc.size, yc.size)
+    assert np.nanmedian(frame.attribute(SLOPES_DEG)) == pytest.approx(np.degrees(np.arctan(0.1)),
+                                                                      abs=0.5)

@@ -1,0 +1,143 @@
+"""Terrain fit: properties on analytic grids with exact truth, paper mode, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from o3d_terrain.errors import InputError
+from o3d_terrain.grid import INVALID, MEASURED, HeightGrid, quantize_points
+from o3d_terrain.terrain import default_control_points, fit_grid, fit_grid_detailed
+
+
+def analytic_grid(fn, *, n=(48, 40), cell=0.5, x_min=0.0, y_min=-10.0, boxes=(), hole=None):
+    xc = x_min + (np.arange(n[0]) + 0.5) * cell
+    yc = y_min + (np.arange(n[1]) + 0.5) * cell
+    z = fn(xc[:, None], yc[None, :]) * np.ones(n)
+    for cx, cy, w, h in boxes:
+        inside = (np.abs(xc[:, None] - cx) <= w / 2) & (np.abs(yc[None, :] - cy) <= w / 2)
+        z = np.where(inside, z + h, z)
+    state = np.full(n, MEASURED, np.uint8)
+    if hole is not None:
+        state[hole] = INVALID
+        z[hole] = 0.0
+    return HeightGrid(x_min, y_min, cell, z, np.ones(n, np.int64), state), xc, yc
+
+
+def hills(x, y):
+    return 0.6 * np.sin(x / 4.0) + 0.4 * np.cos(y / 3.0) + 0.05 * x
+
+
+def test_plane_is_reproduced_exactly_by_both_methods():
+    grid, xc, yc = analytic_grid(lambda x, y: 0.2 * x - 0.1 * y + 3.0)
+    for method, rational in (("robust", True), ("paper", False)):
+        s = fit_grid(grid, control_points=(8, 8), method=method, rational=rational)
+        np.testing.assert_allclose(s(xc[:, None], yc[None, :]), grid.z, atol=1e-6)
+        np.testing.assert_allclose(s.slope_deg(5.0, 0.0), np.degrees(np.arctan(np.hypot(0.2, 0.1))),
+                                   atol=1e-5)
+
+
+def test_paper_rational_weights_bend_a_tilted_plane():
+    # measured failure of the printed method (docs/algorithm.md): R derived from W, Q fitted
+    # without R, so a perfect plane is no longer reproduced
+    grid, xc, yc = analytic_grid(lambda x, y: 0.2 * x - 0.1 * y + 3.0)
+    s = fit_grid(grid, control_points=(8, 8), method="paper", rational=True)
+    assert np.abs(s(xc[:, None], yc[None, :]) - grid.z).max() > 0.1
+
+
+def test_robust_fit_ignores_obstacles_and_follows_hills():
+    boxes = [(6.0, 0.0, 1.0, 1.8), (14.0, 4.0, 2.0, 1.5), (18.0, -5.0, 0.5, 3.0)]
+    grid, xc, yc = analytic_grid(hills, boxes=boxes)
+    fit = fit_grid_detailed(grid, control_points=(20, 20))
+    err = fit.surface(xc[:, None], yc[None, :]) - hills(xc[:, None], yc[None, :])
+    assert np.sqrt(np.mean(err ** 2)) < 0.02
+    assert np.abs(err).max() < 0.1
+    # every obstacle cell is flagged an outlier, no clean cell far from the obstacles is
+    on_box = grid.z - hills(xc[:, None], yc[None, :]) > 0.1
+    assert fit.outliers[on_box].all()
+    assert fit.outliers[~on_box].mean() < 0.01
+
+
+def test_paper_method_is_pulled_up_by_obstacles_more_than_robust():
+    boxes = [(12.0, 0.0, 3.0, 2.0)]
+    grid, xc, yc = analytic_grid(hills, boxes=boxes)
+    truth = hills(xc[:, None], yc[None, :])
+    errors = {}
+    for method in ("paper", "robust"):
+        s = fit_grid(grid, control_points=(20, 20), method=method)
+        errors[method] = np.abs(s(xc[:, None], yc[None, :]) - truth).max()
+    assert errors["robust"] < 0.5 * errors["paper"]
+
+
+def test_data_free_areas_stay_bounded():
+    hole = np.zeros((48, 40), bool)
+    hole[:, 30:] = True  # a quarter of the area without data (occlusion shadow / outskirts)
+    hole[20:28, 15:22] = True  # an interior gap (the sensor's blind centre)
+    grid, xc, yc = analytic_grid(lambda x, y: 0.1 * x + 0.05 * y, hole=hole)
+    s = fit_grid(grid, control_points=(24, 24))
+    z = s(xc[:, None], yc[None, :])
+    truth = 0.1 * xc[:, None] + 0.05 * yc[None, :]
+    assert np.abs(z - truth).max() < 0.05  # a plane continues as a plane
+    # without the penalty the unconstrained control points are arbitrary
+    loose = fit_grid(grid, control_points=(24, 24), smoothing=0.0)
+    assert np.abs(loose(xc[:, None], yc[None, :]) - truth).max() >= np.abs(z - truth).max()
+
+
+def test_low_outliers_do_not_drag_the_surface():
+    rng = np.random.default_rng(0)
+    grid, xc, yc = analytic_grid(hills)
+    z = grid.z.copy()
+    pick = rng.choice(z.size, 30, replace=False)
+    z.ravel()[pick] -= 2.0
+    grid = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, z, grid.count, grid.state)
+    s = fit_grid(grid, control_points=(20, 20))
+    err = s(xc[:, None], yc[None, :]) - hills(xc[:, None], yc[None, :])
+    mask = np.ones(z.size, bool)
+    mask[pick] = False
+    assert np.abs(err.ravel()[mask]).max() < 0.15
+
+
+def test_tilted_utm_cloud_keeps_precision():
+    rng = np.random.default_rng(1)
+    n = 40_000
+    x = rng.uniform(0, 30, n)
+    y = rng.uniform(0, 20, n)
+    z = 0.087 * x + 0.052 * y + rng.normal(0, 0.01, n)  # a 5° / 3° tilted plane
+    offset = np.array([500_000.0, 5_000_000.0, 250.0])
+    grid = quantize_points(np.c_[x, y, z] + offset, cell_size=0.5)
+    s = fit_grid(grid)
+    px, py = rng.uniform(2, 28, 100), rng.uniform(2, 18, 100)
+    est = s(px + offset[0], py + offset[1]) - offset[2]
+    assert np.abs(est - (0.087 * px + 0.052 * py)).max() < 0.02
+
+
+def test_paper_loop_grows_control_points_and_records_iterations():
+    grid, _, _ = analytic_grid(hills, boxes=[(12.0, 0.0, 2.0, 1.0)])
+    fit = fit_grid_detailed(grid, control_points=(9, 9), method="paper")
+    sizes = [r.control_points for r in fit.iterations]
+    assert sizes[0] == (4, 4)
+    assert all(b[0] == a[0] + 1 for a, b in zip(sizes, sizes[1:]))
+    assert fit.surface.shape == (9, 9)
+    assert np.all(fit.sample_weights[grid.valid] > 1.0)  # eq. 3: W > 1 always
+    # equalization never raises a sample and never overshoots the surface
+    assert np.all(fit.samples <= grid.z + 1e-12)
+
+
+def test_default_layout_scales_with_extent():
+    small, _, _ = analytic_grid(hills, n=(20, 20))
+    wide = HeightGrid(-80.0, -80.0, 0.5, np.zeros((320, 320)), np.ones((320, 320), np.int64),
+                      np.full((320, 320), MEASURED, np.uint8))
+    assert default_control_points(small) == (13, 13)
+    assert default_control_points(wide) == (32, 32)
+
+
+def test_bad_input_gives_clear_errors():
+    grid, _, _ = analytic_grid(hills)
+    with pytest.raises(InputError, match="method"):
+        fit_grid(grid, method="fast")
+    with pytest.raises(InputError, match="control_points"):
+        fit_grid(grid, control_points=(3, 3))
+    empty = HeightGrid(0.0, 0.0, 0.5, np.zeros((10, 10)), np.zeros((10, 10), np.int64),
+                       np.zeros((10, 10), np.uint8))
+    with pytest.raises(InputError, match="too few valid cells"):
+        fit_grid(empty)
