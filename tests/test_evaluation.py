@@ -349,3 +349,31 @@ def test_real_las_feet_tiles_are_detected():
         if path.name in feet or path.name == "hexbin-crop.las":
             frame = ds.read_las_frame(path)
             assert (frame.metres_per_unit != 1.0) == (path.name in feet), path.name
+
+
+def test_eval_terrain_command_on_a_flat_scene(tmp_path, capsys):
+    pytest.importorskip("o3d_terrain.api")
+    pytest.importorskip("o3d_terrain.synthetic")
+    out = tmp_path / "terrain"
+    assert _cli(["eval", "terrain", "synthetic:flat", "-o", str(out)]) == 0
+    result = json.loads((out / "terrain.json").read_text())
+    # a plane sampled with 2 cm range noise: the fit is within a few noise sigmas
+    assert result["results"][0]["height_rmse_m"] < 0.06
+    assert (out / "error_map_flat-lidar.png").exists()
+
+
+@pytest.mark.parametrize("name", ["ransac_plane", "csf", "smrf"])
+def test_peer_adapters_on_a_plane_with_a_box(name):
+    from o3d_terrain.evaluation import peers
+
+    if peers.peer_status()[name]:
+        pytest.skip(peers.peer_status()[name])
+    rng = np.random.default_rng(0)
+    ground = np.column_stack([rng.uniform(0, 40, 8000), rng.uniform(0, 40, 8000),
+                              rng.normal(0, 0.01, 8000)])
+    box = np.column_stack([rng.uniform(18, 22, 400), rng.uniform(18, 22, 400),
+                           np.full(400, 2.5)])
+    positions = np.vstack([ground, box])
+    mask = peers.make_peer(name, kind="aerial").segment(positions)
+    assert mask.shape == (8400,) and mask.dtype == bool
+    assert mask[:8000].mean() > 0.9 and mask[8000:].mean() < 0.1

@@ -37,6 +37,7 @@ import contextlib
 import importlib.util
 import os
 import sys
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -180,7 +181,8 @@ class SimpleMorphologicalFilter:
         finite = np.flatnonzero(np.isfinite(positions).all(axis=1))
         points = positions[finite]
         points = points - points.min(axis=0)
-        with quiet_stdout():
+        with quiet_stdout(), warnings.catch_warnings():
+            warnings.simplefilter("ignore", PendingDeprecationWarning)  # rasterio/affine inside
             result = pysmrf.classify(points[:, 0], points[:, 1], points[:, 2], workers=1)
         mask = np.zeros(n, dtype=bool)
         mask[finite] = np.asarray(result.is_ground, dtype=bool)
