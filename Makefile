@@ -1,5 +1,5 @@
 # o3d_terrain: set-up, demo, tests, benchmarks.
-#   make demo   - create .venv, install, run the demo pipeline on a generated scene -> out/
+#   make demo   - create .venv, install, run the demo pipelines on a generated scene -> out/
 #   make test   - create .venv, install with test tools, run the test suite
 #   make bench  - install the peers (bench extra) and regenerate docs/benchmarks.md
 PYTHON ?= python3
@@ -37,6 +37,7 @@ venv: syslibs $(STAMP)
 
 demo: venv
 	$(VENV)/bin/o3d-terrain run pipelines/demo.yaml --output out/demo
+	$(VENV)/bin/o3d-terrain run pipelines/stereo_terrain.yaml --output out/stereo_demo
 
 test: venv
 	$(PY) -m pytest -q

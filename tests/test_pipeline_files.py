@@ -30,13 +30,27 @@ def _twin(path: Path):
 
 
 def _input_for(path: Path, tmp_path: Path) -> Path | None:
-    """Pipelines without a source run on a small generated lidar frame."""
-    pipeline = load_pipeline(path, input_path=None) if _has_source(path) else None
-    if pipeline is not None:
+    """Pipelines without a source run on a generated input: a small lidar frame, or a LAS tile
+    (projected coordinates, as airborne tiles have) for the las_* pipelines."""
+    if _has_source(path):
         return None
     from o3d_terrain.synthetic import make_scene, sample_lidar
 
     cloud = sample_lidar(make_scene("hills", seed=1), beams=16, azimuth_steps=360)
+    if path.stem.startswith("las"):
+        import laspy
+
+        header = laspy.LasHeader(point_format=1, version="1.2")
+        header.offsets = [500000.0, 4500000.0, 0.0]
+        header.scales = [0.001, 0.001, 0.001]
+        las = laspy.LasData(header)
+        las.x = cloud.positions[:, 0] + 500000.0
+        las.y = cloud.positions[:, 1] + 4500000.0
+        las.z = cloud.positions[:, 2] + 200.0
+        las.classification = (cloud.ground_truth == 1) * 2 + (cloud.ground_truth != 1) * 1
+        target = tmp_path / "tile.las"
+        las.write(str(target))
+        return target
     target = tmp_path / "input.npy"
     np.save(target, cloud.positions)
     return target

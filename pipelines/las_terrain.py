@@ -1,0 +1,26 @@
+"""The Python form of las_terrain.yaml (the tile is given as input_path)."""
+
+from pathlib import Path
+
+from o3d_terrain.io import read_cloud
+from o3d_terrain.stages import GridQuantize, RationalBSplineTerrain, Segmenter, SlopeEstimator
+from o3d_terrain.writers import WriteAttribute, WriteCloud, WriteImage, WriteProduct
+
+
+def run(output_dir, input_path=None):
+    if input_path is None:
+        raise ValueError("las_terrain needs a LAS/LAZ tile: run(output_dir, input_path=tile)")
+    frame = GridQuantize(cell_size=1.0)(read_cloud(input_path))
+    frame = RationalBSplineTerrain()(frame)
+    frame = SlopeEstimator(cell_size=1.0)(frame)
+    frame = Segmenter(threshold=0.3)(frame)
+    out = Path(output_dir)
+    for writer in (
+        WriteCloud(path="labelled.ply", color_by="labels"),
+        WriteAttribute(attribute="labels", path="labels.npy"),
+        WriteImage(product="surface", path="terrain_height.png"),
+        WriteImage(product="slope_grid", path="slope.png"),
+        WriteProduct(product="surface", path="surface.npz"),
+    ):
+        writer.write(frame, out)
+    return frame
