@@ -1,0 +1,187 @@
+"""Terrain-model accuracy: the tables of docs/algorithm.md (prints Markdown, no assertions).
+
+1. Synthetic scenes with exact truth (``o3d_terrain.synthetic``, seed 0, default obstacles):
+   lidar (2 cm range noise), stereo-like (0.25 px disparity noise) and lidar tilted (5°, 3°).
+   ``fit_terrain(positions)`` with defaults. Columns: RMSE of the surface under every true
+   terrain point, RMSE over 0.5 m cells with terrain data (``terrain_rmse``), ground F1 with a
+   fixed 0.2 m threshold (0.5 m below), the F1 the exact terrain scores with the same
+   thresholds, and obstacle recall (obstacle points > 0.3 m above the terrain labelled
+   obstacle).
+2. SemanticKITTI seq. 00 (ground {40, 44, 48, 49, 60, 72}, labels 0 and 1 ignored) and
+3. the LAS tiles (class 2 = ground; 0, 7, 18 ignored; feet converted to metres):
+   ``segment_terrain(positions)`` with all defaults; ``--peers`` adds CSF and SMRF (package
+   defaults) on the LAS tiles.
+
+Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
+
+Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las] [--peers]
+     [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from o3d_terrain.api import fit_terrain, segment_terrain  # noqa: E402
+from o3d_terrain.segment import TerrainLabel, segment_points  # noqa: E402
+
+SCENES = ("flat", "hills", "ramp", "ditch_berm", "valley", "mounds", "offroad")
+SENSORS = ("lidar", "stereo", "tilt")
+F1_THRESHOLD = 0.2  # m above the surface, fixed for ours and for the exact terrain
+BELOW_THRESHOLD = 0.5  # m below (the segment_points default)
+OBSTACLE_HEIGHT = 0.3  # obstacle points higher than this count in the obstacle recall
+
+
+def f1_score(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    tp = float(np.sum(predicted & truth))
+    fp = float(np.sum(predicted & ~truth))
+    fn = float(np.sum(~predicted & truth))
+    precision = tp / max(tp + fp, 1.0)
+    recall = tp / max(tp + fn, 1.0)
+    return precision, recall, 2 * precision * recall / max(precision + recall, 1e-12)
+
+
+def _ground_from_heights(h: np.ndarray) -> np.ndarray:
+    return np.isfinite(h) & (h <= F1_THRESHOLD) & (h >= -BELOW_THRESHOLD)
+
+
+def synthetic_row(scene_name: str, sensor: str, method: str) -> dict[str, float]:
+    from o3d_terrain.synthetic import (default_obstacles, make_scene, sample_lidar,
+                                       sample_stereo, terrain_rmse)
+
+    scene = make_scene(scene_name, seed=0)
+    if not scene.obstacles:  # every scene gets the default obstacle set (offroad has its own)
+        scene = scene.with_obstacles(default_obstacles(0))
+    if sensor == "lidar":
+        cloud = sample_lidar(scene, seed=0)
+    elif sensor == "tilt":
+        cloud = sample_lidar(scene, tilt_deg=(5.0, 3.0), seed=0)
+    else:
+        cloud = sample_stereo(scene, seed=0)
+    positions = np.asarray(cloud.positions, dtype=np.float64)
+    usable = ~cloud.is_outlier & np.isfinite(positions).all(axis=1)
+    start = time.perf_counter()
+    surface = fit_terrain(positions, method=method)
+    seconds = time.perf_counter() - start
+    terrain = usable & ~cloud.is_obstacle
+    x, y = positions[:, 0], positions[:, 1]
+    true_z = cloud.terrain_height(x, y)
+    fitted = surface(x[terrain], y[terrain])
+    error = fitted - true_z[terrain]
+    error = error[np.isfinite(error)]
+    rmse_points = float(np.sqrt(np.mean(error**2)))
+    rmse_cells = terrain_rmse(surface, cloud).rmse
+    labels, h = segment_points(surface, positions, threshold=F1_THRESHOLD,
+                               below_threshold=BELOW_THRESHOLD)
+    ground = labels == TerrainLabel.TERRAIN
+    _, _, f1 = f1_score(ground[usable], terrain[usable])
+    true_h = positions[:, 2] - true_z
+    _, _, f1_truth = f1_score(_ground_from_heights(true_h)[usable], terrain[usable])
+    tall = usable & cloud.is_obstacle & (true_h > OBSTACLE_HEIGHT)
+    recall = float(np.mean(labels[tall] == TerrainLabel.OBSTACLE)) if tall.any() else 1.0
+    return {"rmse_points": rmse_points, "rmse_cells": rmse_cells, "f1": f1,
+            "f1_truth": f1_truth, "obstacle_recall": recall, "seconds": seconds}
+
+
+def run_synthetic(method: str, scenes, sensors) -> None:
+    print("| sensor | scene | RMSE at terrain points (m) | RMSE over cells with data (m) | "
+          "ground F1 | F1 of the true terrain | obstacle recall |")
+    print("|---|---|---|---|---|---|---|")
+    for sensor in sensors:
+        for name in scenes:
+            r = synthetic_row(name, sensor, method)
+            print(f"| {sensor} | {name} | {r['rmse_points']:.3f} | {r['rmse_cells']:.3f} | "
+                  f"{r['f1']:.4f} | {r['f1_truth']:.4f} | {r['obstacle_recall']:.3f} |",
+                  flush=True)
+
+
+def run_kitti(root: Path, method: str) -> None:
+    from o3d_terrain.evaluation.datasets import semantic_kitti_frames
+
+    folder = root / "kitti_seq00_lidar"
+    if not folder.is_dir():
+        print(f"SemanticKITTI not found at {folder}: skipped")
+        return
+    print("| frame | precision | recall | F1 |")
+    print("|---|---|---|---|")
+    for frame in semantic_kitti_frames(folder):
+        if not hasattr(frame, "positions"):
+            print(f"| {frame.name} | failed: {frame.reason} | | |")
+            continue
+        _, inliers = segment_terrain(frame.positions, method=method)
+        predicted = np.zeros(len(frame), bool)
+        predicted[inliers] = True
+        p, r, f = f1_score(predicted[frame.scored], frame.is_ground[frame.scored])
+        print(f"| {frame.name} | {p:.4f} | {r:.4f} | {f:.4f} |", flush=True)
+
+
+def run_las(root: Path, method: str, peers: bool) -> None:
+    from o3d_terrain.evaluation.datasets import las_frames
+
+    folder = root / "las"
+    if not folder.is_dir():
+        print(f"LAS tiles not found at {folder}: skipped")
+        return
+    adapters = []
+    if peers:
+        from o3d_terrain.evaluation.peers import make_peer, peer_status
+
+        status = peer_status()
+        adapters = [make_peer(n, kind="aerial") for n in ("csf", "smrf") if not status.get(n)]
+    header = "| tile | points | F1 |" + "".join(f" {a.name} F1 |" for a in adapters)
+    print(header)
+    print("|---|---|---|" + "---|" * len(adapters))
+    scores = []
+    for frame in las_frames(folder):
+        if not hasattr(frame, "positions"):
+            print(f"| {frame.name} | failed: {frame.reason} | |")
+            continue
+        _, inliers = segment_terrain(frame.positions, method=method)
+        predicted = np.zeros(len(frame), bool)
+        predicted[inliers] = True
+        s = frame.scored
+        f = f1_score(predicted[s], frame.is_ground[s])[2]
+        scores.append(f)
+        row = f"| {frame.name} | {len(frame):,} | {f:.4f} |"
+        for adapter in adapters:
+            mask = adapter.segment(frame.positions)
+            row += f" {f1_score(mask[s], frame.is_ground[s])[2]:.4f} |"
+        print(row, flush=True)
+    if scores:
+        print(f"\nmean F1 {np.mean(scores):.4f}")
+
+
+def data_root() -> Path:
+    env = os.environ.get("O3D_TERRAIN_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default="synthetic,kitti,las")
+    parser.add_argument("--method", default="robust")
+    parser.add_argument("--scenes", default=",".join(SCENES))
+    parser.add_argument("--sensors", default=",".join(SENSORS))
+    parser.add_argument("--peers", action="store_true", help="CSF and SMRF on the LAS tiles")
+    args = parser.parse_args()
+    parts = set(args.only.split(","))
+    root = data_root()
+    if "synthetic" in parts:
+        run_synthetic(args.method, args.scenes.split(","), args.sensors.split(","))
+    if "kitti" in parts:
+        run_kitti(root, args.method)
+    if "las" in parts:
+        run_las(root, args.method, args.peers)
+
+
+if __name__ == "__main__":
+    main()
