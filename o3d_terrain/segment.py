@@ -17,6 +17,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from ._kernels import bspline as _bs
 from .errors import InputError
 from .spline import TerrainSurface
 
@@ -42,6 +43,8 @@ def _positions(positions) -> np.ndarray:
 def heights_above_terrain(surface: TerrainSurface, positions) -> np.ndarray:
     """Signed vertical height z - S(x, y) of each point (N,); NaN when undefined."""
     p = _positions(positions)
+    if isinstance(surface, TerrainSurface):
+        return surface.heights_above(p)
     return p[:, 2] - surface(p[:, 0], p[:, 1])
 
 
@@ -84,11 +87,17 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float = 0.2
         raise InputError("segment_points: " + "; ".join(problems))
     p = _positions(positions)
     h = heights_above_terrain(surface, p)
-    t = thresholds(p, threshold=threshold, range_coefficient=range_coefficient,
-                   sensor_origin=sensor_origin)
-    labels = np.full(len(p), TerrainLabel.UNKNOWN, np.uint8)
-    known = np.isfinite(h)
-    labels[known & (h > t)] = TerrainLabel.OBSTACLE
-    labels[known & (h < -below_threshold)] = TerrainLabel.BELOW_TERRAIN
-    labels[known & (h <= t) & (h >= -below_threshold)] = TerrainLabel.TERRAIN
-    return labels, h
+    return label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
+                         range_coefficient=range_coefficient, sensor_origin=sensor_origin), h
+
+
+def label_heights(heights: np.ndarray, positions, *, threshold: float, below_threshold: float,
+                  range_coefficient: float = 0.0, sensor_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Labels (N,) uint8 from heights above the terrain (the rule of :func:`segment_points`,
+    options assumed checked)."""
+    p = _positions(positions)
+    return _bs.label_heights(
+        np.ascontiguousarray(heights, dtype=np.float64), p, float(threshold),
+        float(below_threshold), float(range_coefficient), float(sensor_origin[0]),
+        float(sensor_origin[1]), int(TerrainLabel.UNKNOWN), int(TerrainLabel.TERRAIN),
+        int(TerrainLabel.OBSTACLE), int(TerrainLabel.BELOW_TERRAIN))

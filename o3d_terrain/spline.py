@@ -130,30 +130,34 @@ class TerrainSurface:
                 f"rational={self.is_rational})")
 
     # -- evaluation ------------------------------------------------------------------------
-    def _local(self, x, y):
-        xf, yf, shape = _as_xy(x, y)
-        lx = xf - self.origin[0]
-        ly = yf - self.origin[1]
+    def _tolerances(self) -> tuple[float, float]:
+        """How far outside the knot range a point still counts as inside (rounding)."""
         kx, ky = self.knots_x, self.knots_y
-        tol_x = 1e-9 * max(1.0, kx[-1] - kx[0])
-        tol_y = 1e-9 * max(1.0, ky[-1] - ky[0])
-        outside = ~((lx >= kx[0] - tol_x) & (lx <= kx[-1] + tol_x)
-                    & (ly >= ky[0] - tol_y) & (ly <= ky[-1] + tol_y))
-        if outside.any():
-            lx = lx.copy()
-            lx[outside] = np.nan
-        return lx, ly, shape
+        return 1e-9 * max(1.0, kx[-1] - kx[0]), 1e-9 * max(1.0, ky[-1] - ky[0])
 
     def _evaluate(self, x, y, derivatives: bool):
-        lx, ly, shape = self._local(x, y)
-        z, zx, zy = _bs.rational_surface(lx, ly, self.knots_x, self.knots_y, self.degree,
-                                         self.control_points, self.weights, derivatives)
+        xf, yf, shape = _as_xy(x, y)
+        tol_x, tol_y = self._tolerances()
+        z, zx, zy = _bs.rational_surface_points(
+            xf, yf, self.origin[0], self.origin[1], tol_x, tol_y, self.knots_x, self.knots_y,
+            self.degree, self.control_points, self.weights, derivatives)
         return z, zx, zy, shape
 
     def __call__(self, x, y) -> np.ndarray:
         """Height S(x, y) (world z); NaN outside the region or for non-finite input."""
         z, _, _, shape = self._evaluate(x, y, False)
         return (z + self.origin[2]).reshape(shape)
+
+    def heights_above(self, positions) -> np.ndarray:
+        """Signed vertical height z - S(x, y) of (N, >= 3) world points, (N,); NaN for
+        non-finite points and points outside the region. One pass, no temporaries."""
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] < 3:
+            raise InputError(f"positions must be an (N, 3) array, got shape {p.shape}")
+        tol_x, tol_y = self._tolerances()
+        x0, y0, z0 = self.origin
+        return _bs.heights_above(p, x0, y0, z0, self.knots_x, self.knots_y, self.degree,
+                                 self.control_points, self.weights, tol_x, tol_y)
 
     def gradient(self, x, y) -> tuple[np.ndarray, np.ndarray]:
         """Analytic first derivatives (dz/dx, dz/dy) by the quotient rule; NaN outside."""
@@ -320,9 +324,10 @@ class GridBasis:
             d = self.denominator(rational_weights, w > 0)
             d = np.where(w > 0, d, 1.0)
             mw, rv = w / (d * d), w * zz / d
-        band, rhs = _tk.assemble_band(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
-                                      np.ascontiguousarray(mw), np.ascontiguousarray(rv),
-                                      self.n0, self.n1, self.degree, self.bandwidth)
+        band, rhs = _bs.tensor_normal_band(self.spans_x, self.basis_x, self.spans_y,
+                                           self.basis_y, np.ascontiguousarray(mw),
+                                           np.ascontiguousarray(rv), self.n0, self.n1,
+                                           self.degree, self.bandwidth)
         if rational_weights is not None:
             r = rational_weights.ravel()
             for d_ in range(band.shape[0]):
@@ -334,9 +339,9 @@ class GridBasis:
             _tk.add_thin_plate_band(band, self.n0, self.n1, smoothing * max(data_per_ctrl, 1e-12),
                                     *self.penalty_weights, self.greville_x, self.greville_y)
         band[0] += ridge * scale
-        q, ok = _tk.solve_band_cholesky(band, rhs)
-        if not ok:  # numerically indefinite: fall back to LAPACK, which reports the reason
-            q = solveh_banded(band, rhs, lower=True, check_finite=False)
+        # LAPACK dpbsv (blocked banded Cholesky); raises with the reason when not definite
+        q = solveh_banded(band, rhs, lower=True, overwrite_ab=True, overwrite_b=True,
+                          check_finite=False)
         return q.reshape(self.n0, self.n1)
 
     def solve_two_pass(self, z: np.ndarray, sample_weights: np.ndarray,

@@ -268,3 +268,300 @@ def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_deri
             dzdx[k] = (ax - s * dx) / d
             dzdy[k] = (ay - s * dy) / d
     return z, dzdx, dzdy
+
+
+# -------------------------------------------------------------------------------------------
+# fused per-point kernels: span on uniform knots in O(1), basis, rational sum, one pass
+
+
+@numba.njit(cache=True, inline="always")
+def _uniform_span(n_ctrl, degree, t, knots, inv_width):
+    """Knot span of t on a clamped uniform knot vector (t inside the knot range).
+
+    The span follows from one multiplication; a comparison on each side corrects the rounding
+    of t near a knot, so the result equals :func:`find_span`.
+    """
+    n = n_ctrl - 1
+    low = knots[degree]
+    if t >= knots[n + 1]:
+        return n
+    if t <= low:
+        return degree
+    s = degree + int((t - low) * inv_width)
+    if s > n:
+        s = n
+    if s < degree:
+        s = degree
+    while s > degree and t < knots[s]:
+        s -= 1
+    while s < n and t >= knots[s + 1]:
+        s += 1
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def _point_value(px, py, kx, ky, p, control, weights, inv_wx, inv_wy, bx, by, left, right):
+    """S(px, py) - in local coordinates, inside the knot range - as A / D (no derivatives)."""
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    sx = _uniform_span(n0, p, px, kx, inv_wx)
+    sy = _uniform_span(n1, p, py, ky, inv_wy)
+    basis_funs_scratch(sx, px, p, kx, bx, left, right)
+    basis_funs_scratch(sy, py, p, ky, by, left, right)
+    a = 0.0
+    d = 0.0
+    for i in range(p + 1):
+        ia = sx - p + i
+        ra = 0.0
+        rd = 0.0
+        for j in range(p + 1):
+            jb = sy - p + j
+            r = weights[ia, jb] * by[j]
+            ra += r * control[ia, jb]
+            rd += r
+        a += bx[i] * ra
+        d += bx[i] * rd
+    return a / d
+
+
+@numba.njit(cache=True, inline="always")
+def basis_funs_scratch(span, t, degree, knots, out, left, right):
+    """Piegl & Tiller A2.2 BasisFuns with caller-provided scratch ``left``/``right``."""
+    out[0] = 1.0
+    for j in range(1, degree + 1):
+        left[j] = t - knots[span + 1 - j]
+        right[j] = knots[span + j] - t
+        saved = 0.0
+        for r in range(j):
+            temp = out[r] / (right[r + 1] + left[j - r])
+            out[r] = saved + right[r + 1] * temp
+            saved = left[j - r] * temp
+        out[j] = saved
+
+
+@numba.njit(cache=True, parallel=True)
+def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
+                  weights, tol_x, tol_y):
+    """Signed height z - S(x, y) of each point of an (N, >= 3) array, in one pass.
+
+    ``origin_*``: the surface's local origin (positions are world coordinates). Points with a
+    non-finite coordinate or with (x, y) outside the knot range widened by ``tol_x``/``tol_y``
+    give NaN. Parallel over points; each point is independent, so the result does not depend
+    on the thread count.
+    """
+    n = positions.shape[0]
+    p = degree
+    out = np.empty(n)
+    kx0 = knots_x[0]
+    kx1 = knots_x[knots_x.shape[0] - 1]
+    ky0 = knots_y[0]
+    ky1 = knots_y[knots_y.shape[0] - 1]
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    inv_wx = (n0 - p) / (knots_x[n0] - knots_x[p])
+    inv_wy = (n1 - p) / (knots_y[n1] - knots_y[p])
+    chunk = 4096
+    n_chunks = (n + chunk - 1) // chunk
+    for c in numba.prange(n_chunks):
+        bx = np.empty(p + 1)
+        by = np.empty(p + 1)
+        left = np.empty(p + 1)
+        right = np.empty(p + 1)
+        for k in range(c * chunk, min(n, (c + 1) * chunk)):
+            px = positions[k, 0] - origin_x
+            py = positions[k, 1] - origin_y
+            z = positions[k, 2]
+            if not (px >= kx0 - tol_x and px <= kx1 + tol_x and py >= ky0 - tol_y
+                    and py <= ky1 + tol_y and math.isfinite(z)):
+                out[k] = np.nan
+                continue
+            s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
+                             bx, by, left, right)
+            out[k] = (z - origin_z) - s
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def label_heights(heights, positions, threshold, below_threshold, range_coefficient,
+                  sensor_x, sensor_y, unknown, terrain, obstacle, below):
+    """Labels (uint8) from heights above the terrain: ``obstacle`` above t(r) = threshold +
+    range_coefficient r^2, ``below`` under -below_threshold, ``terrain`` between, ``unknown``
+    for NaN heights. r is the horizontal range of ``positions[k]`` from the sensor."""
+    n = heights.shape[0]
+    out = np.empty(n, np.uint8)
+    for k in numba.prange(n):
+        h = heights[k]
+        if not math.isfinite(h):
+            out[k] = unknown
+            continue
+        t = threshold
+        if range_coefficient != 0.0:
+            dx = positions[k, 0] - sensor_x
+            dy = positions[k, 1] - sensor_y
+            t = threshold + range_coefficient * (dx * dx + dy * dy)
+        if h > t:
+            out[k] = obstacle
+        elif h < -below_threshold:
+            out[k] = below
+        else:
+            out[k] = terrain
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, knots_y, degree,
+                            control, weights, with_derivatives):
+    """:func:`rational_surface` at world points (x[k], y[k]) of a surface with local origin
+    (origin_x, origin_y), spans found in O(1) on the uniform knots, points split over threads
+    (each point is independent, so results do not depend on the thread count).
+
+    NaN for non-finite input and for points outside the knot range widened by
+    ``tol_x``/``tol_y``; points within the tolerance use the end span.
+    """
+    n = x.shape[0]
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    z = np.empty(n)
+    dzdx = np.empty(n) if with_derivatives else np.empty(0)
+    dzdy = np.empty(n) if with_derivatives else np.empty(0)
+    inv_wx = (n0 - p) / (knots_x[n0] - knots_x[p])
+    inv_wy = (n1 - p) / (knots_y[n1] - knots_y[p])
+    lo_x = knots_x[0] - tol_x
+    hi_x = knots_x[knots_x.shape[0] - 1] + tol_x
+    lo_y = knots_y[0] - tol_y
+    hi_y = knots_y[knots_y.shape[0] - 1] + tol_y
+    chunk = 4096
+    n_chunks = (n + chunk - 1) // chunk
+    for c in numba.prange(n_chunks):
+        bx = np.empty(p + 1)
+        by = np.empty(p + 1)
+        dbx = np.zeros(p + 1)
+        dby = np.zeros(p + 1)
+        left = np.empty(p + 1)
+        right = np.empty(p + 1)
+        for k in range(c * chunk, min(n, (c + 1) * chunk)):
+            xk = x[k] - origin_x
+            yk = y[k] - origin_y
+            if not (xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y):
+                z[k] = np.nan
+                if with_derivatives:
+                    dzdx[k] = np.nan
+                    dzdy[k] = np.nan
+                continue
+            if not with_derivatives:
+                z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
+                                    inv_wy, bx, by, left, right)
+                continue
+            sx = _uniform_span(n0, p, xk, knots_x, inv_wx)
+            sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
+            basis_funs_first_derivative(sx, xk, p, knots_x, bx, dbx, left, right)
+            basis_funs_first_derivative(sy, yk, p, knots_y, by, dby, left, right)
+            a = 0.0
+            d = 0.0
+            ax = 0.0
+            dx = 0.0
+            ay = 0.0
+            dy = 0.0
+            for i in range(p + 1):
+                ia = sx - p + i
+                ra = 0.0
+                rd = 0.0
+                ra_y = 0.0
+                rd_y = 0.0
+                for j in range(p + 1):
+                    jb = sy - p + j
+                    r = weights[ia, jb]
+                    rq = r * control[ia, jb]
+                    ra += by[j] * rq
+                    rd += by[j] * r
+                    ra_y += dby[j] * rq
+                    rd_y += dby[j] * r
+                a += bx[i] * ra
+                d += bx[i] * rd
+                ax += dbx[i] * ra
+                dx += dbx[i] * rd
+                ay += bx[i] * ra_y
+                dy += bx[i] * rd_y
+            s = a / d
+            z[k] = s
+            dzdx[k] = (ax - s * dx) / d
+            dzdy[k] = (ay - s * dy) / d
+    return z, dzdx, dzdy
+
+
+# -------------------------------------------------------------------------------------------
+# normal equations of a tensor-product fit on a grid, by rows
+
+
+@numba.njit(cache=True)
+def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_values, n0, n1,
+                       degree, bandwidth):
+    """Band of sum_c w_c b_c b_c^T and the vector sum_c v_c b_c over grid cells c = (i, j),
+    b_c[a * n1 + b] = N_a(x_i) N_b(y_j), in LAPACK lower band storage ``band[d, k] = A[k + d, k]``.
+
+    The tensor product is used row by row: for grid row i, T_i = sum_j w_ij by_j by_j^T
+    (banded, n1 x n1) and r_i = sum_j v_ij by_j are gathered first, then
+    A[(a, b), (a', b')] += bx_i[a] bx_i[a'] T_i[b, b'] for the degree + 1 non-zero bx_i[a].
+    That is O(m0 m1 p^2 + m0 n1 p^3) instead of O(m0 m1 p^4) for the cell-by-cell sum; both
+    give the same matrix up to rounding. Cells with w = v = 0 are skipped.
+    """
+    p = degree
+    size = n0 * n1
+    lower = np.zeros((size, bandwidth + 1))  # lower[k, d] = A[k + d, k]
+    rhs = np.zeros(size)
+    t = np.zeros((n1, p + 1))  # t[b, d] = T_i[b, b + d]
+    r = np.zeros(n1)
+    m0 = spans_x.shape[0]
+    m1 = spans_y.shape[0]
+    for i in range(m0):
+        sx = spans_x[i]
+        if sx < 0:
+            continue
+        b_lo = n1
+        b_hi = -1
+        for j in range(m1):
+            w = matrix_weights[i, j]
+            v = rhs_values[i, j]
+            if w == 0.0 and v == 0.0:
+                continue
+            sy = spans_y[j]
+            if sy < 0:
+                continue
+            base = sy - p
+            if base < b_lo:
+                b_lo = base
+            if sy > b_hi:
+                b_hi = sy
+            for b in range(p + 1):
+                yb = basis_y[j, b]
+                r[base + b] += v * yb
+                wb = w * yb
+                for d in range(p + 1 - b):
+                    t[base + b, d] += wb * basis_y[j, b + d]
+        if b_hi < 0:
+            continue
+        for a1 in range(p + 1):
+            row1 = (sx - p + a1) * n1
+            xa1 = basis_x[i, a1]
+            for b in range(b_lo, b_hi + 1):
+                rhs[row1 + b] += xa1 * r[b]
+            f = xa1 * xa1
+            for b in range(b_lo, b_hi + 1):
+                for d in range(min(p + 1, b_hi + 1 - b)):
+                    lower[row1 + b, d] += f * t[b, d]
+            for a2 in range(a1 + 1, p + 1):
+                f = xa1 * basis_x[i, a2]
+                off = (a2 - a1) * n1
+                for b1 in range(b_lo, b_hi + 1):
+                    k1 = row1 + b1
+                    # b2 < b1: T[b2, b1 - b2]; b2 >= b1: T[b1, b2 - b1]
+                    for b2 in range(max(b_lo, b1 - p), b1):
+                        lower[k1, off + b2 - b1] += f * t[b2, b1 - b2]
+                    for b2 in range(b1, min(b_hi + 1, b1 + p + 1)):
+                        lower[k1, off + b2 - b1] += f * t[b1, b2 - b1]
+        for b in range(b_lo, b_hi + 1):
+            r[b] = 0.0
+            for d in range(p + 1):
+                t[b, d] = 0.0
+    return np.ascontiguousarray(lower.T), rhs
