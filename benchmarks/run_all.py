@@ -82,10 +82,10 @@ def _standard_frame(spec: str, seed: int):
 
     scene = synthetic.make_scene("offroad", seed=seed)
     if spec == "lidar120k":  # a 64-beam 360° frame
-        cloud = synthetic.sample_lidar(scene, beams=64, azimuth_steps=2000, seed=seed)
+        cloud = synthetic.sample_lidar(scene, beams=64, azimuth_steps=3200, seed=seed)
         kind = "vehicle_lidar"
     elif spec == "stereo300k":
-        cloud = synthetic.sample_stereo(scene, width=880, height=660, seed=seed)
+        cloud = synthetic.sample_stereo(scene, width=800, height=600, seed=seed)
         kind = "stereo"
     else:  # the paper's 640x480 stereo camera
         cloud = synthetic.sample_stereo(scene, width=640, height=480, seed=seed)
@@ -307,7 +307,9 @@ def collect(args) -> dict:
     results = {"machine": machine(), "date": _dt.datetime.now().strftime("%Y-%m-%d %H:%M"),
                "threads": args.threads, "repeats": args.repeats,
                "command": "python benchmarks/run_all.py --write-docs"
-                          + (f" --threads {args.threads}" if args.threads != 1 else ""),
+                          + (f" --threads {args.threads}" if args.threads != 1 else "")
+                          + (f" --repeats {args.repeats}" if args.repeats != 5 else "")
+                          + (f" --timeout {args.timeout:g}" if args.timeout != 240 else ""),
                "segment": {}, "stages": {}, "terrain": None}
     methods = [OURS, *PEER_NAMES]
     plan = [("kitti", True), ("las", False), ("synthetic", False), ("lidar120k", True),
