@@ -14,12 +14,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import InputError
-from .frame import as_frame
-from .grid import quantize_points, region_of
-from .segment import TerrainLabel, segment_points
+from .errors import ConfigError, InputError
+from .frame import LABELS, Frame, as_frame
+from .grid import region_of
+from .segment import TerrainLabel
+from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
-from .terrain import fit_grid_detailed
+from .stages.grid_quantize import GridQuantize
+from .stages.terrain import RationalBSplineTerrain, Segmenter
 
 __all__ = ["fit_terrain", "segment_terrain", "cloud_positions"]
 
@@ -46,38 +48,40 @@ def _check_region(region) -> tuple[float, float, float, float] | None:
     return values
 
 
-def _fit(positions: np.ndarray, region, cell_size, control_points, degree, method, smoothing):
-    if not (isinstance(cell_size, (int, float)) and math.isfinite(cell_size) and cell_size > 0):
-        raise InputError(f"cell_size must be a finite number > 0 (metres), got {cell_size!r}")
+def _build(make, **options):
+    """A stage from the api's keyword arguments; option errors become InputError."""
+    try:
+        return make(**options)
+    except ConfigError as exc:
+        raise InputError(str(exc)) from exc
+
+
+def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
+                   smoothing) -> Frame:
+    """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
+    region = _check_region(region)
+    quantize = _build(GridQuantize, cell_size=cell_size, region=region)
+    terrain = _build(RationalBSplineTerrain,
+                     control_points=None if control_points is None else tuple(control_points),
+                     degree=degree, method=method, smoothing=smoothing)
+    frame = as_frame(cloud)
+    positions = frame.positions
     if len(positions) == 0:
         raise InputError("the cloud is empty; give a cloud with points")
-    finite = np.isfinite(positions).all(axis=1)
-    if not finite.any():
-        raise InputError(f"the cloud has no finite point (all {len(positions)} have NaN or "
-                         f"infinite coordinates)")
-    region = _check_region(region)
     if region is None:
-        region = region_of(positions)
-        if not (region[1] > region[0] and region[3] > region[2]):
-            raise InputError(f"the cloud's x/y extent {region} is degenerate (all points on a "
+        extent = region_of(positions)  # raises when no point is finite
+        if not (extent[1] > extent[0] and extent[3] > extent[2]):
+            raise InputError(f"the cloud's x/y extent {extent} is degenerate (all points on a "
                              f"line or one spot); give a region")
-    grid = quantize_points(positions, cell_size=float(cell_size), region=region)
-    return fit_grid_detailed(grid, control_points=control_points, degree=degree, method=method,
-                             smoothing=smoothing), int((~finite).sum())
+    return terrain(quantize(frame))
 
 
 def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: float = 3.5,
                    low: float = 0.1, high: float = 0.5) -> float:
     """Obstacle threshold from the data: ``factor`` times the robust spread of the points
-    at or below the surface (terrain noise; obstacles never lie below it), in [low, high] m."""
-    step = max(1, len(positions) // 50_000)
-    sample = positions[::step]
-    h = sample[:, 2] - surface(sample[:, 0], sample[:, 1])
-    below = h[(h <= 0) & (h > -high)]
-    if below.size < 10:
-        return low
-    noise = 1.4826 * float(np.median(-below))
-    return float(np.clip(factor * noise, low, high))
+    at or below the surface (terrain noise; obstacles never lie below it), in [low, high] m
+    (:func:`o3d_terrain.segment.auto_threshold` of the heights above the surface)."""
+    return _auto_threshold(surface.heights_above(positions), factor=factor, low=low, high=high)
 
 
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
@@ -86,13 +90,15 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
-    cell_size: grid cell side (m). control_points: per axis; None = about one every 4 cells
+    cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
     (at least 1 m), at most 32 per axis. degree: B-spline degree. method: "robust" or "paper".
     smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
+
+    Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
+    as a pipeline).
     """
-    positions = cloud_positions(cloud)
-    fit, _ = _fit(positions, region, cell_size, control_points, degree, method, smoothing)
-    return fit.surface
+    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing)
+    return frame.product("surface")
 
 
 def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
@@ -108,12 +114,16 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
     just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`). Other options
     as in :func:`fit_terrain`.
+
+    Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
-    positions = cloud_positions(cloud)
-    fit, _ = _fit(positions, region, cell_size, control_points, degree, method, smoothing)
-    if distance_threshold is None:
-        distance_threshold = auto_threshold(fit.surface, positions)
-    labels, _ = segment_points(fit.surface, positions, threshold=distance_threshold,
-                               below_threshold=below_threshold,
-                               range_coefficient=range_coefficient, sensor_origin=sensor_origin)
-    return fit.surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)
+    try:
+        origin = tuple(float(v) for v in sensor_origin)
+    except (TypeError, ValueError):
+        raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
+    segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
+                       range_coefficient=range_coefficient, sensor_origin=origin)
+    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing)
+    frame = segmenter(frame)
+    labels = frame.attribute(LABELS)
+    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)

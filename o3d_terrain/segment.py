@@ -21,7 +21,12 @@ from ._kernels import bspline as _bs
 from .errors import InputError
 from .spline import TerrainSurface
 
-__all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds"]
+__all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds",
+           "auto_threshold", "label_heights"]
+
+#: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m
+AUTO_THRESHOLD_FACTOR = 3.5
+AUTO_THRESHOLD_RANGE = (0.1, 0.5)
 
 
 class TerrainLabel(IntEnum):
@@ -66,18 +71,35 @@ def _check(name: str, value, *, positive: bool) -> str | None:
     return None
 
 
-def segment_points(surface: TerrainSurface, positions, *, threshold: float = 0.2,
+def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR,
+                   low: float = AUTO_THRESHOLD_RANGE[0],
+                   high: float = AUTO_THRESHOLD_RANGE[1]) -> float:
+    """Obstacle threshold from the data: ``factor`` times the robust spread (1.4826 x median
+    absolute value) of the heights at or below the surface (terrain noise; obstacles never lie
+    below it), clipped to [low, high] m. Uses every k-th point, k = max(1, N // 50,000)."""
+    step = max(1, len(heights) // 50_000)
+    h = np.asarray(heights, dtype=np.float64)[::step]
+    below = h[(h <= 0) & (h > -high)]
+    if below.size < 10:
+        return low
+    noise = 1.4826 * float(np.median(-below))
+    return float(np.clip(factor * noise, low, high))
+
+
+def segment_points(surface: TerrainSurface, positions, *, threshold: float | None = 0.2,
                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
                    sensor_origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
-    threshold: points higher than this above the surface are obstacles (m).
+    threshold: points higher than this above the surface are obstacles (m); None = from the
+        data (:func:`auto_threshold`).
     below_threshold: points lower than this below the surface are BELOW_TERRAIN noise (m).
     range_coefficient: growth of the threshold with horizontal range squared (1/m), for
         stereo clouds; 0 = constant threshold.
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates).
     """
-    problems = [m for m in (_check("threshold", threshold, positive=True),
+    problems = [m for m in (None if threshold is None
+                            else _check("threshold", threshold, positive=True),
                             _check("below_threshold", below_threshold, positive=True),
                             _check("range_coefficient", range_coefficient, positive=False))
                 if m]
@@ -87,6 +109,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float = 0.2
         raise InputError("segment_points: " + "; ".join(problems))
     p = _positions(positions)
     h = heights_above_terrain(surface, p)
+    if threshold is None:
+        threshold = auto_threshold(h)
     return label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                          range_coefficient=range_coefficient, sensor_origin=sensor_origin), h
 

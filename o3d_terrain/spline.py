@@ -32,6 +32,7 @@ from .errors import InputError
 
 __all__ = [
     "TerrainSurface",
+    "SlopeGrid",
     "clamped_uniform_knots",
     "make_lsq_surface",
     "GridBasis",
@@ -63,7 +64,9 @@ class TerrainSurface:
     """A rational B-spline height surface z = S(x, y) over a rectangular region.
 
     ``knots_x``/``knots_y`` and ``control_points`` are in local coordinates (relative to
-    ``origin``); every public method takes and returns world coordinates.
+    ``origin``); every public method takes and returns world coordinates. ``cell_size``: the
+    cell side (m) of the grid the surface was fitted to, when known; the default spacing of
+    :meth:`image_layers`.
     """
 
     degree: int
@@ -72,6 +75,7 @@ class TerrainSurface:
     control_points: np.ndarray  # Q, (n0 + 1, n1 + 1), heights relative to origin[2]
     weights: np.ndarray  # R, (n0 + 1, n1 + 1), > 0
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    cell_size: float | None = None
 
     def __post_init__(self) -> None:
         kx = np.ascontiguousarray(self.knots_x, dtype=np.float64)
@@ -96,6 +100,8 @@ class TerrainSurface:
                 problems.append("control_points must be finite and weights finite and > 0")
         if kx.size > 1 and (np.any(np.diff(kx) < 0) or np.any(np.diff(ky) < 0)):
             problems.append("knot vectors must be non-decreasing")
+        if self.cell_size is not None and not (np.isfinite(self.cell_size) and self.cell_size > 0):
+            problems.append(f"cell_size must be None or a finite number > 0, got {self.cell_size!r}")
         if problems:
             raise InputError("invalid TerrainSurface: " + "; ".join(problems))
         for arr in (kx, ky, q, r):
@@ -106,6 +112,8 @@ class TerrainSurface:
         object.__setattr__(self, "control_points", q)
         object.__setattr__(self, "weights", r)
         object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
+        if self.cell_size is not None:
+            object.__setattr__(self, "cell_size", float(self.cell_size))
 
     # -- description -----------------------------------------------------------------------
     @property
@@ -199,6 +207,31 @@ class TerrainSurface:
         z = self(xc[:, None], yc[None, :])
         return z, xc, yc
 
+    def default_cell_size(self) -> float:
+        """Raster spacing for images: the fitted grid's cell size when known, else the longer
+        side of the region / 200."""
+        if self.cell_size is not None:
+            return self.cell_size
+        x_min, x_max, y_min, y_max = self.region
+        return max(x_max - x_min, y_max - y_min) / 200
+
+    def image_layers(self, cell_size: float | None = None) -> dict[str, tuple]:
+        """Layers for images (``WriteImage product: surface``): name -> (values [ix, iy], valid
+        mask, unit), sampled at cell centres every ``cell_size`` m (None =
+        :meth:`default_cell_size`): ``z`` (height, m) and ``slope_deg``."""
+        step = self.default_cell_size() if cell_size is None else cell_size
+        slope = self.slope_grid(step)
+        z, _, _ = self.to_raster(step)
+        return {"z": (z, np.isfinite(z), "m"), **slope.image_layers()}
+
+    def slope_grid(self, cell_size: float) -> "SlopeGrid":
+        """Slope (degrees) at the centres of square cells of ``cell_size`` m covering the
+        region, as a :class:`SlopeGrid`; NaN where the centre is outside the region."""
+        x_min, x_max, y_min, y_max = self.region
+        xc = self._axis(x_min, x_max, cell_size, True)
+        yc = self._axis(y_min, y_max, cell_size, True)
+        return SlopeGrid(self.slope_deg(xc[:, None], yc[None, :]), xc, yc, float(cell_size))
+
     def to_mesh(self, resolution: float = 0.5):
         """An ``open3d.geometry.TriangleMesh`` of the surface with vertices every
         ``resolution`` metres (at most; the region's edges are always included)."""
@@ -227,9 +260,10 @@ class TerrainSurface:
     # -- persistence -----------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write the surface to a ``.npz`` file (exact round trip with :meth:`load`)."""
+        extra = {} if self.cell_size is None else {"cell_size": self.cell_size}
         np.savez(path, kind="TerrainSurface", degree=self.degree, knots_x=self.knots_x,
                  knots_y=self.knots_y, control_points=self.control_points,
-                 weights=self.weights, origin=np.asarray(self.origin))
+                 weights=self.weights, origin=np.asarray(self.origin), **extra)
 
     @classmethod
     def load(cls, path: str | Path) -> "TerrainSurface":
@@ -240,13 +274,73 @@ class TerrainSurface:
             with data:
                 if "kind" not in data or str(data["kind"]) != "TerrainSurface":
                     raise InputError(f"{path}: not a TerrainSurface file (no kind='TerrainSurface')")
+                cell_size = float(data["cell_size"]) if "cell_size" in data else None
                 return cls(int(data["degree"]), data["knots_x"], data["knots_y"],
                            data["control_points"], data["weights"],
-                           tuple(float(v) for v in data["origin"]))
+                           tuple(float(v) for v in data["origin"]), cell_size)
         except (OSError, ValueError, KeyError) as exc:
             if isinstance(exc, InputError):
                 raise
             raise InputError(f"{path}: cannot read a TerrainSurface ({exc})") from exc
+
+
+@dataclass(frozen=True, eq=False)
+class SlopeGrid:
+    """Terrain slope at cell centres (the ``slope_grid`` product of SlopeEstimator).
+
+    ``slope_deg[ix, iy]`` in degrees (NaN where undefined) at (x_centers[ix], y_centers[iy]),
+    square cells of ``cell_size`` m. Unpacks as ``slope_deg, x_centers, y_centers``.
+    """
+
+    slope_deg: np.ndarray
+    x_centers: np.ndarray
+    y_centers: np.ndarray
+    cell_size: float
+
+    def __post_init__(self) -> None:
+        values = np.asarray(self.slope_deg, dtype=np.float64)
+        xc = np.asarray(self.x_centers, dtype=np.float64).ravel()
+        yc = np.asarray(self.y_centers, dtype=np.float64).ravel()
+        if values.shape != (xc.size, yc.size):
+            raise InputError(f"SlopeGrid: slope_deg shape {values.shape} must be "
+                             f"(len(x_centers), len(y_centers)) = {(xc.size, yc.size)}")
+        if not (np.isfinite(self.cell_size) and self.cell_size > 0):
+            raise InputError(f"SlopeGrid: cell_size must be a finite number > 0, "
+                             f"got {self.cell_size!r}")
+        for name, arr in (("slope_deg", values), ("x_centers", xc), ("y_centers", yc)):
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "cell_size", float(self.cell_size))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.slope_deg.shape)  # type: ignore[return-value]
+
+    def __iter__(self):
+        return iter((self.slope_deg, self.x_centers, self.y_centers))
+
+    def image_layers(self) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+        """``{"slope_deg": (values[ix, iy], valid mask, "deg")}`` for the image writers."""
+        return {"slope_deg": (self.slope_deg, np.isfinite(self.slope_deg), "deg")}
+
+    def save(self, path: str | Path) -> None:
+        """Write to an ``.npz`` file (round trip with :meth:`load`)."""
+        np.savez_compressed(path, kind="SlopeGrid", slope_deg=self.slope_deg,
+                            x_centers=self.x_centers, y_centers=self.y_centers,
+                            cell_size=self.cell_size)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SlopeGrid":
+        try:
+            with np.load(path) as data:
+                if "kind" not in data or str(data["kind"]) != "SlopeGrid":
+                    raise InputError(f"{path}: not a SlopeGrid file (no kind='SlopeGrid')")
+                return cls(data["slope_deg"], data["x_centers"], data["y_centers"],
+                           float(data["cell_size"]))
+        except (OSError, ValueError, KeyError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"{path}: cannot read a SlopeGrid ({exc})") from exc
 
 
 # -------------------------------------------------------------------------------------------

@@ -114,5 +114,46 @@ def test_stages_write_declared_products_and_attributes():
     assert (labels[truth == TerrainLabel.OBSTACLE] == TerrainLabel.OBSTACLE).mean() > 0.95
     slope_grid, xc, yc = frame.product("slope_grid")
     assert slope_grid.shape == (xc.size, yc.size)
+    surface = frame.product("surface")
+    assert surface.cell_size == 0.5
+    np.testing.assert_allclose(slope_grid, surface.slope_deg(xc[:, None], yc[None, :]),
+                               atol=1e-12)
     assert np.nanmedian(frame.attribute(SLOPES_DEG)) == pytest.approx(np.degrees(np.arctan(0.1)),
                                                                       abs=0.5)
+
+
+def test_segment_terrain_equals_the_stage_chain():
+    pts, _ = scene(4, n=8_000)
+    surface, inliers = segment_terrain(pts, cell_size=0.5)
+    frame = Segmenter(threshold=None)(RationalBSplineTerrain()(GridQuantize(cell_size=0.5)(pts)))
+    np.testing.assert_array_equal(
+        inliers, np.flatnonzero(frame.attribute(LABELS) == TerrainLabel.TERRAIN))
+    np.testing.assert_array_equal(surface.control_points,
+                                  frame.product("surface").control_points)
+    with pytest.raises(InputError, match="degree"):
+        segment_terrain(pts, degree=9)
+
+
+def test_slope_grid_and_surface_draw_and_save(tmp_path):
+    from o3d_terrain.spline import SlopeGrid
+    from o3d_terrain.writers import WriteImage, WriteProduct
+
+    pts, _ = scene(5, n=8_000)
+    frame = SlopeEstimator(cell_size=1.0)(RationalBSplineTerrain()(GridQuantize()(pts)))
+    grid = frame.product("slope_grid")
+    assert isinstance(grid, SlopeGrid) and grid.cell_size == 1.0
+    values, valid, unit = grid.image_layers()["slope_deg"]
+    assert unit == "deg" and values.shape == valid.shape == grid.shape and valid.all()
+    WriteProduct(product="slope_grid", path="slope.npz").write(frame, tmp_path)
+    loaded = SlopeGrid.load(tmp_path / "slope.npz")
+    np.testing.assert_array_equal(loaded.slope_deg, grid.slope_deg)
+    np.testing.assert_array_equal(loaded.x_centers, grid.x_centers)
+    surface = frame.product("surface")
+    layers = surface.image_layers()
+    z, z_valid, z_unit = layers["z"]
+    assert z_unit == "m" and z.shape == (60, 40) and z_valid.all()  # 30 x 20 m at 0.5 m
+    np.testing.assert_allclose(z[10, 10], surface(surface.region[0] + 5.25,
+                                                  surface.region[2] + 5.25), atol=1e-12)
+    for product in ("slope_grid", "surface"):
+        written = WriteImage(product=product, path=f"{product}.png").write(frame, tmp_path)
+        assert written[0].stat().st_size > 0

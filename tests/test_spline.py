@@ -173,9 +173,31 @@ def test_save_load_round_trip(tmp_path):
     y = 2e6 + rng.uniform(-3, 4, 50)
     np.testing.assert_array_equal(s(x, y), t(x, y))
     assert t.origin == s.origin and t.degree == s.degree
+    assert t.cell_size is None
     np.save(tmp_path / "other.npy", np.zeros(3))
     with pytest.raises(InputError, match="TerrainSurface"):
         TerrainSurface.load(tmp_path / "other.npy")
+    u = TerrainSurface(s.degree, s.knots_x, s.knots_y, s.control_points, s.weights, s.origin,
+                       cell_size=0.25)
+    u.save(tmp_path / "u.npz")
+    assert TerrainSurface.load(tmp_path / "u.npz").cell_size == 0.25
+
+
+def test_heights_above_equal_z_minus_surface_and_are_nan_outside():
+    rng = np.random.default_rng(8)
+    s = random_surface(rng, origin=(5e5, 4e6, 200.0))
+    x0, x1, y0, y1 = s.region
+    pts = np.c_[rng.uniform(x0 - 1, x1 + 1, 2000), rng.uniform(y0 - 1, y1 + 1, 2000),
+                200 + rng.normal(0, 3, 2000)]
+    pts[::97] = np.nan
+    pts[5, 2] = np.inf
+    pts[6, :2] = (x1, y1)  # the far corner is inside
+    h = s.heights_above(pts)
+    expected = pts[:, 2] - s(pts[:, 0], pts[:, 1])
+    expected[~np.isfinite(expected)] = np.nan  # any non-finite coordinate: undefined
+    np.testing.assert_allclose(h, expected, atol=1e-9)
+    assert np.array_equal(np.isnan(h), np.isnan(expected))
+    assert np.isfinite(h[6]) and np.isnan(h[5])
 
 
 def test_raster_and_mesh_export():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
@@ -58,7 +60,10 @@ class RationalBSplineTerrain(Stage):
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
             rational=self.rational,
         )
-        return frame.with_products(surface=fit.surface, terrain_fit=fit)
+        grid = frame.product("grid")
+        surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
+        return frame.with_products(surface=surface,
+                                   terrain_fit=dataclasses.replace(fit, surface=surface))
 
 
 @stage
@@ -66,8 +71,9 @@ class SlopeEstimator(Stage):
     """Slope of the terrain surface by analytic derivation, per point and as a grid.
 
     Writes the per-point attribute ``slopes_deg`` (slope of the terrain under each point,
-    NaN outside the surface's region) and the product ``slope_grid`` = (slope_deg, x_centers,
-    y_centers) with ``slope_deg[ix, iy]`` in degrees at cell centres.
+    NaN outside the surface's region) and the product ``slope_grid``, a SlopeGrid: slope in
+    degrees at cell centres (``slope_deg[ix, iy]``, ``x_centers``, ``y_centers``), which
+    WriteImage draws and WriteProduct saves.
     """
 
     reads = ("surface",)
@@ -80,14 +86,8 @@ class SlopeEstimator(Stage):
         surface = frame.product("surface")
         p = frame.positions
         slopes = surface.slope_deg(p[:, 0], p[:, 1]) if len(p) else np.zeros(0)
-        x_min, x_max, y_min, y_max = surface.region
-        xc = x_min + (np.arange(max(1, int(np.ceil((x_max - x_min) / self.cell_size - 1e-9))))
-                      + 0.5) * self.cell_size
-        yc = y_min + (np.arange(max(1, int(np.ceil((y_max - y_min) / self.cell_size - 1e-9))))
-                      + 0.5) * self.cell_size
-        grid = surface.slope_deg(xc[:, None], yc[None, :])
         frame = frame.with_attributes(**{SLOPES_DEG: slopes.astype(np.float64)[:, None]})
-        return frame.with_products(slope_grid=(grid, xc, yc))
+        return frame.with_products(slope_grid=surface.slope_grid(self.cell_size))
 
 
 @stage
@@ -103,8 +103,10 @@ class Segmenter(Stage):
     reads = ("surface",)
     writes_attributes = (LABELS, HEIGHTS_ABOVE_TERRAIN)
 
-    threshold: float = option(0.2, unit="m", rule=POSITIVE,
-                              help="height above the terrain that makes a point an obstacle")
+    threshold: float = option(0.2, kind=float, nullable=True, unit="m", rule=POSITIVE,
+                              help="height above the terrain that makes a point an obstacle; "
+                                   "null = from the data: 3.5 times the robust noise of the "
+                                   "points below the surface, in [0.1, 0.5] m")
     below_threshold: float = option(0.5, unit="m", rule=POSITIVE,
                                     help="depth below the terrain that makes a point noise")
     range_coefficient: float = option(0.0, unit="1/m", rule=NON_NEGATIVE,
