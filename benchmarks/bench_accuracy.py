@@ -16,6 +16,7 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
+     [--terrain-prior]
 """
 
 from __future__ import annotations
@@ -31,8 +32,28 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from o3d_terrain.api import fit_terrain, segment_terrain  # noqa: E402
+from o3d_terrain.api import auto_threshold  # noqa: E402
+from o3d_terrain.grid import quantize_points, region_of  # noqa: E402
 from o3d_terrain.segment import TerrainLabel, segment_points  # noqa: E402
+from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
+
+#: keyword options of fit_grid_detailed for every fit (set from the command line)
+FIT_OPTIONS: dict = {}
+
+
+def fit_terrain(positions: np.ndarray, method: str = "robust"):
+    """What ``o3d_terrain.fit_terrain`` does with its defaults (0.5 m cells, the cloud's
+    extent), with FIT_OPTIONS passed to the fit."""
+    finite = positions[np.isfinite(positions).all(axis=1)]
+    grid = quantize_points(finite, cell_size=0.5, region=region_of(finite))
+    return fit_grid_detailed(grid, method=method, **FIT_OPTIONS).surface
+
+
+def segment_terrain(positions: np.ndarray, method: str = "robust"):
+    """What ``o3d_terrain.segment_terrain`` does with its defaults (automatic threshold)."""
+    surface = fit_terrain(positions, method)
+    labels, _ = segment_points(surface, positions, threshold=auto_threshold(surface, positions))
+    return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN)
 
 SCENES = ("flat", "hills", "ramp", "ditch_berm", "valley", "mounds", "offroad")
 SENSORS = ("lidar", "stereo", "tilt")
@@ -172,7 +193,11 @@ def main() -> None:
     parser.add_argument("--scenes", default=",".join(SCENES))
     parser.add_argument("--sensors", default=",".join(SENSORS))
     parser.add_argument("--peers", action="store_true", help="CSF and SMRF on the LAS tiles")
+    parser.add_argument("--terrain-prior", action="store_true",
+                        help="fit with terrain_prior=True (slope-limited connectivity)")
     args = parser.parse_args()
+    if args.terrain_prior:
+        FIT_OPTIONS["terrain_prior"] = True
     parts = set(args.only.split(","))
     root = data_root()
     if "synthetic" in parts:

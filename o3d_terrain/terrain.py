@@ -23,11 +23,12 @@ from typing import Sequence
 import numpy as np
 
 from .errors import InputError
+from ._kernels import ground as _ground
 from .grid import FILLED, MEASURED, HeightGrid
 from .spline import GridBasis, TerrainSurface
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "METHODS"]
+           "default_control_points", "terrain_prior_mask", "METHODS"]
 
 METHODS = ("robust", "paper")
 
@@ -90,6 +91,10 @@ def fit_grid_detailed(
     filled_weight: float = 0.3,
     rational: bool = True,
     max_iterations: int = 30,
+    terrain_prior: bool = False,
+    max_slope_deg: float = 45.0,
+    gap_slope_deg: float = 20.0,
+    max_obstacle_width: float = 40.0,
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -103,6 +108,16 @@ def fit_grid_detailed(
     rational: derive control-point weights R from the sample weights (the paper's rational
         surface); False gives a plain B-spline.
     max_iterations: cap on loop passes.
+    terrain_prior: (robust) slope-limited connectivity to the lowest cells
+        (:func:`terrain_prior_mask`): connected compact cells keep full weight above the surface
+        on the coarse layouts (steep narrow terrain such as a berm is not rejected before the
+        layout can follow it) and a threshold widened by the in-cell spread of the steepest
+        slope on the final one. Off by default: on SemanticKITTI it lets single-ring cells on
+        building walls and bushes through (docs/algorithm.md).
+    max_slope_deg: steepest terrain between neighbouring cells (degrees).
+    gap_slope_deg: steepest terrain assumed across cells without data (degrees).
+    max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
+        the connectivity, so a roof narrower than this never seeds it.
     """
     problems = []
     if method not in METHODS:
@@ -110,9 +125,13 @@ def fit_grid_detailed(
     if not (isinstance(degree, (int, np.integer)) and 1 <= degree <= 5):
         problems.append(f"degree must be an integer in [1, 5], got {degree!r}")
     for name, value, low in (("smoothing", smoothing, 0.0), ("noise_floor", noise_floor, 0.0),
-                             ("filled_weight", filled_weight, 0.0)):
+                             ("filled_weight", filled_weight, 0.0),
+                             ("max_obstacle_width", max_obstacle_width, 0.0)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= low):
             problems.append(f"{name} must be a finite number >= {low}, got {value!r}")
+    for name, value in (("max_slope_deg", max_slope_deg), ("gap_slope_deg", gap_slope_deg)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and 0 < value < 90):
+            problems.append(f"{name} must be a number of degrees in (0, 90), got {value!r}")
     if problems:
         raise InputError("fit_grid: " + "; ".join(problems))
     degree = int(degree)
@@ -146,12 +165,53 @@ def fit_grid_detailed(
                          max_iterations)
     else:
         base = np.where(measured, 1.0, np.where(grid.state == FILLED, filled_weight, 0.0))
+        prior = None
+        if terrain_prior:
+            _, compact = terrain_prior_mask(grid, max_slope_deg=max_slope_deg,
+                                            gap_slope_deg=gap_slope_deg,
+                                            max_obstacle_width=max_obstacle_width,
+                                            tolerance=3.0 * noise_floor)
+            # height spread of a plane of the steepest slope inside one cell
+            spread = 0.3 * grid.cell_size * math.tan(math.radians(max_slope_deg))
+            prior = (compact, spread)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
-                          smoothing, noise_floor, max_iterations)
+                          smoothing, noise_floor, max_iterations, prior)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
     surface = TerrainSurface(degree, basis.knots_x, basis.knots_y, q, r, origin)
     return TerrainFit(surface, records, weights, np.where(valid, samples + z0, np.nan),
                       equalized, outliers, noise)
+
+
+def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
+                       gap_slope_deg: float = 20.0, max_obstacle_width: float = 40.0,
+                       tolerance: float = 0.09) -> tuple[np.ndarray, np.ndarray]:
+    """(connected, compact) masks over the grid's cells, from the lowest point of each cell.
+
+    connected: MEASURED cells reachable from seed cells by 8-neighbour steps that climb at most
+    cell_size * tan(max_slope_deg) + tolerance (descending is free; empty cells are crossed at
+    the height of the lowest gap_slope_deg cone through the data). Seeds: measured cells that
+    are the lowest within max_obstacle_width / 2. Obstacle walls are jumps steeper than the
+    limit, so roofs and tops are not connected; steep smooth terrain is.
+    compact: connected cells whose sample (eq. 1) is within tolerance of their lowest point; a
+    cell holding a wall or a person (lowest point on the ground, sample above it) is not.
+    Cells above the max-slope cone of another cell (Vosselman's slope filter: the top of a
+    wall) are neither seeds nor crossed.
+    """
+    measured = grid.state == MEASURED
+    lowest = grid.lowest if grid.lowest is not None else grid.z
+    low = np.where(measured & np.isfinite(lowest), lowest, np.inf)
+    measured = np.isfinite(low)
+    c = float(grid.cell_size)
+    step = math.tan(math.radians(max_slope_deg))
+    crossed = _ground.cone_fill(low, measured, c, math.tan(math.radians(gap_slope_deg)))
+    radius = max(1, int(round(max_obstacle_width / 2 / c)))
+    seeds = measured & (low <= _ground.window_min(low, radius))
+    walls = _ground.above_slope_cone(low, c, step, float(tolerance))
+    crossed = np.where(walls, np.inf, crossed)
+    connected = measured & _ground.connected_terrain(crossed, seeds & ~walls, c, step,
+                                                      float(tolerance))
+    compact = connected & (grid.z - low <= tolerance)
+    return connected, compact
 
 
 # -------------------------------------------------------------------------------------------
@@ -244,13 +304,15 @@ def _robust_scale(r: np.ndarray, floor: float) -> float:
 
 
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
-                noise_floor, max_iterations):
+                noise_floor, max_iterations, prior=None):
     above_k = 2.5  # threshold above the surface, in noise scales
     below_k = 6.0  # threshold below the surface (low outliers), in noise scales
     alpha = 4.0
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
     layouts = _layouts(n_max, degree)
     valid = base > 0
+    if prior is not None:
+        compact, prior_spread = prior
     p = z.copy()
     w = base.copy()
     r_samples = None
@@ -276,11 +338,19 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             # bounded eq. 3: w = (W - 1) / W with W = 1 + (|dz| / th)^-alpha
             t = np.where(res > 0, res / th_above, -res / th_below)
             wn = base / (1.0 + t ** alpha)
+            if prior is not None:
+                if final:  # robust again, with the spread of the steepest slope in a cell
+                    tc = res / (th_above + prior_spread)
+                    wn = np.where(compact & (res > 0), base / (1.0 + tc ** alpha), wn)
+                else:  # coarse layouts cannot follow narrow steep terrain: keep it whole
+                    wn = np.where(compact & (res > 0), base, wn)
             w = wn
             r_samples = np.where(valid, wn / np.maximum(base, 1e-12), 0.0)
             # equalization: clip samples far above onto a band over the surface (never raise)
             limit = s + clip_k * th_above
             move = valid & (z > limit)
+            if prior is not None:
+                move &= ~compact
             newp = np.where(move, limit, z)
             moved = int((np.abs(newp - p) > 1e-4).sum())
             p = newp

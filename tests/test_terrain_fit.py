@@ -141,3 +141,41 @@ def test_bad_input_gives_clear_errors():
                        np.zeros((10, 10), np.uint8))
     with pytest.raises(InputError, match="too few valid cells"):
         fit_grid(empty)
+
+
+def berm(x, y):
+    """A berm 1 m high and 0.8 m sigma along x (steepest flank atan(e^-0.5 / 0.8) = 37 deg)."""
+    return 1.0 * np.exp(-0.5 * ((y - 3.0) / 0.8) ** 2)
+
+
+def test_terrain_prior_follows_a_steep_narrow_berm_and_still_cuts_boxes():
+    # boxes have vertical walls (a jump of their height between neighbouring cells), the berm's
+    # flanks stay below the 45 deg slope limit
+    boxes = [(6.0, -5.0, 1.0, 1.8), (16.0, -4.0, 2.0, 1.5)]
+    grid, xc, yc = analytic_grid(berm, boxes=boxes)
+    truth = berm(xc[:, None], yc[None, :])
+    plain = fit_grid_detailed(grid, control_points=(28, 28))
+    fit = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=True)
+    on_box = grid.z - truth > 0.1
+    err = fit.surface(xc[:, None], yc[None, :]) - truth
+    err_plain = plain.surface(xc[:, None], yc[None, :]) - truth
+    assert np.abs(err[~on_box]).max() < 0.5 * np.abs(err_plain[~on_box]).max()
+    assert np.sqrt(np.mean(err[~on_box] ** 2)) < 0.05
+    assert fit.outliers[on_box].all()
+
+
+def test_terrain_prior_mask_rejects_roofs_of_any_width():
+    from o3d_terrain.terrain import terrain_prior_mask
+
+    # a 10 m wide, 4 m high building on a 10 % slope: the roof is never connected
+    grid, xc, yc = analytic_grid(lambda x, y: 0.1 * x, boxes=[(12.0, 0.0, 10.0, 4.0)])
+    connected, compact = terrain_prior_mask(grid, max_obstacle_width=30.0)
+    on_roof = grid.z - 0.1 * xc[:, None] > 1.0
+    assert not connected[on_roof].any()
+    assert connected[~on_roof].all() and compact[~on_roof].all()
+
+
+def test_terrain_prior_options_are_checked():
+    grid, _, _ = analytic_grid(hills)
+    with pytest.raises(InputError, match="max_slope_deg"):
+        fit_grid_detailed(grid, terrain_prior=True, max_slope_deg=95.0)

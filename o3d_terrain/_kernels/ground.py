@@ -1,0 +1,192 @@
+"""Slope-limited terrain connectivity on a height grid (a "lowest plausible surface" prior).
+
+Terrain is continuous: between two neighbouring cells its height changes by at most
+distance * tan(max terrain slope). Obstacles (vehicles, people, buildings, trunks) stand on it
+with near-vertical walls: somewhere along their outline the height jumps by more than that.
+So the cells reachable from low seed cells by steps that never climb faster than the slope limit
+are terrain candidates, however steep or narrow the terrain feature (a berm, a ditch wall, a
+mountain slope), and however wide the obstacle (a building's roof is never reached: its walls
+are a jump). Descending is always allowed (terrain can fall away behind a crest).
+
+Cells without data are crossed with the height of the lowest cone through the data,
+``E(c) = min_m z(m) + tan(gap slope) * d(c, m)`` (a chamfer distance transform), so occlusion
+shadows do not split the terrain, while a shadow cannot raise the carried height faster than
+the gap slope.
+
+Arrays are ``[ix, iy]`` like the height grid. NumPy in, NumPy out.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_SQRT2 = 1.4142135623730951
+
+
+@numba.njit(cache=True)
+def above_slope_cone(height, cell_size, slope, tolerance):
+    """Cells higher than tolerance above the cone of slope ``slope`` through any other cell:
+    height[c] > min_{n != c} (height[n] + slope * d(c, n)) + tolerance, with d the 8-neighbour
+    chamfer distance (Vosselman's slope-based filter, computed by two raster sweeps of the
+    lower cone envelope). inf heights are empty cells; they are never flagged."""
+    nx, ny = height.shape
+    # nothing kept fixed: envelope[c] = min_m height[m] + slope d(c, m) over every cell m
+    envelope = cone_fill(height, np.zeros((nx, ny), np.bool_), cell_size, slope)
+    flagged = np.zeros((nx, ny), np.bool_)
+    straight = slope * cell_size
+    diagonal = straight * _SQRT2
+    for i in range(nx):
+        for j in range(ny):
+            h = height[i, j]
+            if not np.isfinite(h):
+                continue
+            best = np.inf
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0):
+                        continue
+                    v = envelope[a, b] + (straight if (di == 0 or dj == 0) else diagonal)
+                    if v < best:
+                        best = v
+            flagged[i, j] = h > best + tolerance
+    return flagged
+
+
+@numba.njit(cache=True)
+def cone_fill(height, measured, cell_size, gap_slope):
+    """The lower cone envelope min_m (height[m] + gap_slope * d(c, m)) over cells m, d the
+    8-neighbour chamfer distance (two raster sweeps), kept equal to ``height`` where
+    ``measured``. ``height`` is inf at empty cells; inf remains where no data is reachable."""
+    nx, ny = height.shape
+    out = height.copy()
+    straight = gap_slope * cell_size
+    diagonal = straight * _SQRT2
+    for i in range(nx):  # forward sweep: neighbours above and to the left
+        for j in range(ny):
+            if measured[i, j]:
+                continue
+            v = out[i, j]
+            if i > 0:
+                v = min(v, out[i - 1, j] + straight)
+                if j > 0:
+                    v = min(v, out[i - 1, j - 1] + diagonal)
+                if j < ny - 1:
+                    v = min(v, out[i - 1, j + 1] + diagonal)
+            if j > 0:
+                v = min(v, out[i, j - 1] + straight)
+            out[i, j] = v
+    for i in range(nx - 1, -1, -1):  # backward sweep
+        for j in range(ny - 1, -1, -1):
+            if measured[i, j]:
+                continue
+            v = out[i, j]
+            if i < nx - 1:
+                v = min(v, out[i + 1, j] + straight)
+                if j > 0:
+                    v = min(v, out[i + 1, j - 1] + diagonal)
+                if j < ny - 1:
+                    v = min(v, out[i + 1, j + 1] + diagonal)
+            if j < ny - 1:
+                v = min(v, out[i, j + 1] + straight)
+            out[i, j] = v
+    return out
+
+
+@numba.njit(cache=True)
+def _sliding_min_1d(values, radius, out):
+    """out[i] = min(values[i - radius : i + radius + 1]) (van Herk / Gil-Werman, O(n))."""
+    n = values.shape[0]
+    w = 2 * radius + 1
+    prefix = np.empty(n)
+    suffix = np.empty(n)
+    for start in range(0, n, w):
+        stop = min(start + w, n)
+        prefix[start] = values[start]
+        for k in range(start + 1, stop):
+            prefix[k] = min(prefix[k - 1], values[k])
+        suffix[stop - 1] = values[stop - 1]
+        for k in range(stop - 2, start - 1, -1):
+            suffix[k] = min(suffix[k + 1], values[k])
+    for i in range(n):
+        lo = max(i - radius, 0)
+        hi = min(i + radius, n - 1)
+        # [lo, hi] spans at most two blocks: the suffix of lo's block and the prefix of hi's
+        if lo // w == hi // w:
+            v = values[lo]
+            for k in range(lo + 1, hi + 1):
+                v = min(v, values[k])
+            out[i] = v
+        else:
+            out[i] = min(suffix[lo], prefix[hi])
+
+
+@numba.njit(cache=True)
+def window_min(values, radius):
+    """Minimum over the (2 radius + 1)^2 square window around every cell (separable)."""
+    nx, ny = values.shape
+    rows = np.empty((nx, ny))
+    buf_in = np.empty(ny)
+    buf_out = np.empty(ny)
+    for i in range(nx):
+        for j in range(ny):
+            buf_in[j] = values[i, j]
+        _sliding_min_1d(buf_in, radius, buf_out)
+        for j in range(ny):
+            rows[i, j] = buf_out[j]
+    out = np.empty((nx, ny))
+    col_in = np.empty(nx)
+    col_out = np.empty(nx)
+    for j in range(ny):
+        for i in range(nx):
+            col_in[i] = rows[i, j]
+        _sliding_min_1d(col_in, radius, col_out)
+        for i in range(nx):
+            out[i, j] = col_out[i]
+    return out
+
+
+@numba.njit(cache=True)
+def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
+    """Cells reachable from ``seeds`` by 8-neighbour steps that climb at most
+    step_slope * distance + tolerance (descending is free). ``height`` must be finite where it
+    can be crossed (e.g. from :func:`cone_fill`); inf cells are never entered. Returns a bool
+    mask over all cells (measured and crossed empty cells)."""
+    nx, ny = height.shape
+    accepted = np.zeros((nx, ny), np.bool_)
+    queue = np.empty(nx * ny, np.int64)
+    head = 0
+    tail = 0
+    for i in range(nx):
+        for j in range(ny):
+            if seeds[i, j] and np.isfinite(height[i, j]):
+                accepted[i, j] = True
+                queue[tail] = i * ny + j
+                tail += 1
+    straight = step_slope * cell_size + tolerance
+    diagonal = step_slope * cell_size * _SQRT2 + tolerance
+    while head < tail:
+        k = queue[head]
+        head += 1
+        i = k // ny
+        j = k - i * ny
+        h = height[i, j]
+        for di in range(-1, 2):
+            a = i + di
+            if a < 0 or a >= nx:
+                continue
+            for dj in range(-1, 2):
+                b = j + dj
+                if b < 0 or b >= ny or (di == 0 and dj == 0) or accepted[a, b]:
+                    continue
+                limit = straight if (di == 0 or dj == 0) else diagonal
+                hn = height[a, b]
+                if hn <= h + limit:
+                    accepted[a, b] = True
+                    queue[tail] = a * ny + b
+                    tail += 1
+    return accepted
