@@ -194,46 +194,19 @@ def _read_profile(path_text: str, mtime_ns: int) -> VehicleProfile:
 # the surface on a regular grid
 
 
-def _basis_matrix(t: np.ndarray, knots: np.ndarray, degree: int, n_ctrl: int):
-    inside = (t >= knots[0] - 1e-9) & (t <= knots[-1] + 1e-9)
-    tt = np.where(inside, np.clip(t, knots[0], knots[-1]), np.nan)
-    spans, values = _bs.basis_table(np.ascontiguousarray(tt), n_ctrl, degree, knots, 1)
-    b = np.zeros((len(t), n_ctrl))
-    db = np.zeros((len(t), n_ctrl))
-    rows = np.flatnonzero(spans >= 0)
-    for r in range(degree + 1):
-        cols = spans[rows] - degree + r
-        b[rows, cols] = values[rows, 0, r]
-        db[rows, cols] = values[rows, 1, r]
-    return b, db, inside
-
-
 def surface_on_grid(surface, x_centers: np.ndarray, y_centers: np.ndarray):
     """Height and gradient of a TerrainSurface at every (x_centers[i], y_centers[j]).
 
     Returns ``z, dz_dx, dz_dy`` shaped (len(x), len(y)), NaN outside the region. The tensor
-    product is evaluated as matrix products B_x (R∘Q) B_yᵀ / B_x R B_yᵀ (and the quotient rule
-    for the derivatives), equal to calling the surface point by point.
+    product is contracted along x once per row and then summed per node (equal to calling the
+    surface point by point, up to rounding).
     """
     x0, y0, z0 = surface.origin
-    q = np.asarray(surface.control_points)
-    r = np.asarray(surface.weights)
-    bx, dbx, in_x = _basis_matrix(np.asarray(x_centers, float) - x0, surface.knots_x,
-                                  surface.degree, q.shape[0])
-    by, dby, in_y = _basis_matrix(np.asarray(y_centers, float) - y0, surface.knots_y,
-                                  surface.degree, q.shape[1])
-    rq = r * q
-    n_by, d_by = rq @ by.T, r @ by.T
-    num, den = bx @ n_by, bx @ d_by
-    num_x, den_x = dbx @ n_by, dbx @ d_by
-    num_y, den_y = bx @ (rq @ dby.T), bx @ (r @ dby.T)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = num / den
-        gx = (num_x - z * den_x) / den
-        gy = (num_y - z * den_y) / den
-    outside = ~(in_x[:, None] & in_y[None, :])
-    for a in (z, gx, gy):
-        a[outside] = np.nan
+    kx, ky = surface.knots_x, surface.knots_y
+    z, gx, gy = _bs.rational_surface_grid(
+        np.ascontiguousarray(np.asarray(x_centers, float) - x0),
+        np.ascontiguousarray(np.asarray(y_centers, float) - y0), kx, ky, surface.degree,
+        np.asarray(surface.control_points), np.asarray(surface.weights), 1e-9, 1e-9)
     return z + z0, gx, gy
 
 
@@ -421,27 +394,6 @@ def _check_positive(name: str, value, *, allow_zero: bool = False, high: float |
     return None
 
 
-def _box_mask(obstacle, x_centers: np.ndarray, y_centers: np.ndarray, cell_size: float):
-    """(ix slice, iy slice, mask) of the cells whose centre lies in an obstacle's box."""
-    corners = obstacle.corners()
-    lo = corners.min(axis=0)
-    hi = corners.max(axis=0)
-    x0, y0 = x_centers[0] - cell_size / 2, y_centers[0] - cell_size / 2
-    i0 = max(int(np.floor((lo[0] - x0) / cell_size)), 0)
-    i1 = min(int(np.ceil((hi[0] - x0) / cell_size)) + 1, len(x_centers))
-    j0 = max(int(np.floor((lo[1] - y0) / cell_size)), 0)
-    j1 = min(int(np.ceil((hi[1] - y0) / cell_size)) + 1, len(y_centers))
-    if i1 <= i0 or j1 <= j0:
-        return None
-    a = math.radians(obstacle.box_yaw_deg)
-    dx = x_centers[i0:i1, None] - obstacle.box_center[0]
-    dy = y_centers[None, j0:j1] - obstacle.box_center[1]
-    u = dx * math.cos(a) + dy * math.sin(a)
-    v = -dx * math.sin(a) + dy * math.cos(a)
-    half = np.asarray(obstacle.box_size) / 2 + cell_size / 2
-    return slice(i0, i1), slice(j0, j1), (np.abs(u) <= half[0]) & (np.abs(v) <= half[1])
-
-
 def traversability_cost(surface, cloud: Any = None, *,
                         vehicle: str | Path | VehicleProfile = "offroad_suv",
                         cell_size: float = 0.25,
@@ -502,11 +454,12 @@ def traversability_cost(surface, cloud: Any = None, *,
 
     # slope from the surface's derivatives
     _, gx, gy = surface_on_grid(surface, xc, yc)
-    slope = np.degrees(np.arctan(np.hypot(gx, gy)))
 
-    # step and roughness from the points
-    step = np.full((nx, ny), np.nan)
-    rough = np.full((nx, ny), np.nan)
+    # step and roughness from the points, occupancy from the obstacles
+    count = np.zeros((nx, ny), np.int32)
+    highest = np.full((nx, ny), -np.inf)
+    rn = np.zeros((nx, ny), np.int32)
+    rs2 = np.zeros((nx, ny))
     occupied = np.zeros((nx, ny), bool)
     lethal_step = profile.lethal_step
     if cloud is not None:
@@ -522,37 +475,23 @@ def traversability_cost(surface, cloud: Any = None, *,
             ix, iy = _k.bin_points(np.ascontiguousarray(positions[:, 0]),
                                    np.ascontiguousarray(positions[:, 1]),
                                    x_min, y_min, cell_size, nx, ny)
-            count, highest, rn, rs, rs2 = _k.cell_statistics(
+            count, highest, rn, _, rs2 = _k.cell_statistics(
                 ix, iy, np.ascontiguousarray(heights), use, nx, ny, lethal_step)
-            known = count > 0
-            step[known] = np.maximum(highest[known], 0.0)
-            has_rough = rn > 0
-            rough[has_rough] = np.sqrt(rs2[has_rough] / rn[has_rough])
             if obstacles is not None:
-                for obstacle in obstacles:
-                    if obstacle.height <= lethal_step:
-                        continue
-                    idx = np.asarray(obstacle.indices)
-                    inside = ix[idx] >= 0
-                    occupied[ix[idx][inside], iy[idx][inside]] = True
+                tall = [o for o in obstacles if o.height > lethal_step]
+                if tall:
+                    _k.mark_points(ix, iy, np.concatenate(
+                        [np.asarray(o.indices, np.int64) for o in tall]), occupied)
                     if fill_obstacle_boxes:
-                        box = _box_mask(obstacle, xc, yc, cell_size)
-                        if box is not None:
-                            occupied[box[0], box[1]] |= box[2]
+                        _k.fill_boxes(np.array([o.box_center for o in tall], np.float64),
+                                      np.array([o.box_size for o in tall], np.float64),
+                                      np.array([o.box_yaw_deg for o in tall], np.float64),
+                                      float(x_min), float(y_min), float(cell_size), occupied)
 
     # the cost formula
-    known = np.isfinite(step)
-    slope_term = np.where(np.isfinite(slope), (slope / profile.max_slope_deg) ** 2, 1.0)
-    step_term = np.where(known, (np.nan_to_num(step) / lethal_step) ** 2, 0.0)
-    rough_term = np.where(np.isfinite(rough),
-                          np.minimum(np.nan_to_num(rough) / profile.max_roughness, 1.0) ** 2, 0.0)
-    total = sum(w)
-    cost = (w[0] * slope_term + w[1] * step_term + w[2] * rough_term) / total
-    cost = np.where(known, cost, np.maximum(w[0] * slope_term / total, unknown_cost))
-    lethal = np.nan_to_num(slope) > profile.max_slope_deg
-    lethal |= known & (np.nan_to_num(step) > lethal_step)
-    lethal |= occupied
-    state = np.where(known, FREE, UNKNOWN).astype(np.uint8)
+    slope, step, rough, cost, lethal, state = _k.cost_cells(
+        gx, gy, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
+        profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE, UNKNOWN)
 
     # inflation by the footprint
     if lethal.any():
@@ -565,16 +504,10 @@ def traversability_cost(surface, cloud: Any = None, *,
             from scipy import ndimage
 
             distance = ndimage.distance_transform_edt(~lethal) * cell_size
-        r_in, r_out = profile.inscribed_radius, profile.circumscribed_radius
-        inscribed = (distance <= r_in) & ~lethal
-        state[inscribed] = INSCRIBED
-        band = (distance > r_in) & (distance <= r_out)
-        cost[band] = np.maximum(cost[band],
-                                0.99 * np.exp(-(distance[band] - r_in) / inflation_scale))
-        cost[inscribed] = 1.0
-    state[lethal] = LETHAL
-    cost = np.minimum(cost, 0.99)
-    cost[state >= INSCRIBED] = 1.0
+        _k.inflate(cost, state, lethal, distance, profile.inscribed_radius,
+                   profile.circumscribed_radius, float(inflation_scale), INSCRIBED, LETHAL)
+    else:
+        np.minimum(cost, 0.99, out=cost)
     options = {"cell_size": float(cell_size), "unknown_cost": float(unknown_cost),
                "weights": list(w), "inflation_scale": float(inflation_scale),
                "fill_obstacle_boxes": bool(fill_obstacle_boxes)}

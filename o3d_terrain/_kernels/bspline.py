@@ -339,16 +339,14 @@ def basis_funs_scratch(span, t, degree, knots, out, left, right):
         out[j] = saved
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
     """Signed height z - S(x, y) of each point of an (N, >= 3) array, in one pass.
 
     ``origin_*``: the surface's local origin (positions are world coordinates). Points with a
     non-finite coordinate or with (x, y) outside the knot range widened by ``tol_x``/``tol_y``
-    give NaN. Parallel over points; each point is independent, so the result does not depend
-    on the thread count.
-    """
+    give NaN. """
     n = positions.shape[0]
     p = degree
     out = np.empty(n)
@@ -362,7 +360,7 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     inv_wy = (n1 - p) / (knots_y[n1] - knots_y[p])
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
-    for c in numba.prange(n_chunks):
+    for c in range(n_chunks):
         bx = np.empty(p + 1)
         by = np.empty(p + 1)
         left = np.empty(p + 1)
@@ -381,7 +379,7 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def label_heights(heights, positions, threshold, below_threshold, range_coefficient,
                   sensor_x, sensor_y, unknown, terrain, obstacle, below):
     """Labels (uint8) from heights above the terrain: ``obstacle`` above t(r) = threshold +
@@ -389,7 +387,7 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
     for NaN heights. r is the horizontal range of ``positions[k]`` from the sensor."""
     n = heights.shape[0]
     out = np.empty(n, np.uint8)
-    for k in numba.prange(n):
+    for k in range(n):
         h = heights[k]
         if not math.isfinite(h):
             out[k] = unknown
@@ -408,12 +406,11 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, knots_y, degree,
                             control, weights, with_derivatives):
     """:func:`rational_surface` at world points (x[k], y[k]) of a surface with local origin
-    (origin_x, origin_y), spans found in O(1) on the uniform knots, points split over threads
-    (each point is independent, so results do not depend on the thread count).
+    (origin_x, origin_y), spans found in O(1) on the uniform knots.
 
     NaN for non-finite input and for points outside the knot range widened by
     ``tol_x``/``tol_y``; points within the tolerance use the end span.
@@ -433,7 +430,7 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
     hi_y = knots_y[knots_y.shape[0] - 1] + tol_y
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
-    for c in numba.prange(n_chunks):
+    for c in range(n_chunks):
         bx = np.empty(p + 1)
         by = np.empty(p + 1)
         dbx = np.zeros(p + 1)
@@ -565,3 +562,101 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
             for d in range(p + 1):
                 t[b, d] = 0.0
     return np.ascontiguousarray(lower.T), rhs
+
+
+@numba.njit(cache=True)
+def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_x, tol_y):
+    """Rational surface and first derivatives at every grid node (x[i], y[j]) (local
+    coordinates): ``z, dz_dx, dz_dy`` shaped (len(x), len(y)), NaN where x[i] or y[j] lies
+    outside the knot range widened by ``tol_x``/``tol_y`` (inside it, clamped to the range).
+
+    The tensor product is contracted along x once per grid row (4 (n1,) vectors: sums over a
+    of N_a(x_i) R Q, N_a R and their x derivatives), then every node costs 6 sums of
+    degree + 1 terms: S = A / D, S_x = (A_x - S D_x) / D, S_y = (A_y - S D_y) / D.
+    """
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    mx = x.shape[0]
+    my = y.shape[0]
+    z = np.full((mx, my), np.nan)
+    gx = np.full((mx, my), np.nan)
+    gy = np.full((mx, my), np.nan)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    # basis along y, once
+    span_y = np.full(my, -1, np.int64)
+    by = np.zeros((my, p + 1))
+    dby = np.zeros((my, p + 1))
+    ky0 = knots_y[0]
+    ky1 = knots_y[knots_y.shape[0] - 1]
+    tmp = np.empty(p + 1)
+    dtmp = np.empty(p + 1)
+    for j in range(my):
+        t = y[j]
+        if not (t >= ky0 - tol_y and t <= ky1 + tol_y):
+            continue
+        t = min(max(t, ky0), ky1)
+        s = find_span(n1, p, t, knots_y)
+        span_y[j] = s
+        basis_funs_first_derivative(s, t, p, knots_y, tmp, dtmp, left, right)
+        for b in range(p + 1):
+            by[j, b] = tmp[b]
+            dby[j, b] = dtmp[b]
+    rq = weights * control
+    a_row = np.empty(n1)
+    d_row = np.empty(n1)
+    ax_row = np.empty(n1)
+    dx_row = np.empty(n1)
+    bx = np.empty(p + 1)
+    dbx = np.empty(p + 1)
+    kx0 = knots_x[0]
+    kx1 = knots_x[knots_x.shape[0] - 1]
+    for i in range(mx):
+        t = x[i]
+        if not (t >= kx0 - tol_x and t <= kx1 + tol_x):
+            continue
+        t = min(max(t, kx0), kx1)
+        sx = find_span(n0, p, t, knots_x)
+        basis_funs_first_derivative(sx, t, p, knots_x, bx, dbx, left, right)
+        for b in range(n1):
+            a = 0.0
+            d = 0.0
+            ax = 0.0
+            dx = 0.0
+            for k in range(p + 1):
+                r = weights[sx - p + k, b]
+                q = rq[sx - p + k, b]
+                a += bx[k] * q
+                d += bx[k] * r
+                ax += dbx[k] * q
+                dx += dbx[k] * r
+            a_row[b] = a
+            d_row[b] = d
+            ax_row[b] = ax
+            dx_row[b] = dx
+        for j in range(my):
+            sy = span_y[j]
+            if sy < 0:
+                continue
+            a = 0.0
+            d = 0.0
+            ax = 0.0
+            dx = 0.0
+            ay = 0.0
+            dy = 0.0
+            for k in range(p + 1):
+                b = sy - p + k
+                v = by[j, k]
+                w = dby[j, k]
+                a += v * a_row[b]
+                d += v * d_row[b]
+                ax += v * ax_row[b]
+                dx += v * dx_row[b]
+                ay += w * a_row[b]
+                dy += w * d_row[b]
+            s = a / d
+            z[i, j] = s
+            gx[i, j] = (ax - s * dx) / d
+            gy[i, j] = (ay - s * dy) / d
+    return z, gx, gy

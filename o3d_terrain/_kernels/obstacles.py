@@ -139,3 +139,136 @@ def group_by(ids, n_groups):
             order[fill[g]] = k
             fill[g] += 1
     return order, starts
+
+
+@numba.njit(cache=True)
+def mark_points(ix, iy, indices, occupied):
+    """occupied[ix[k], iy[k]] = True for every k in ``indices`` with a cell (ix[k] >= 0)."""
+    for t in range(indices.shape[0]):
+        k = indices[t]
+        if ix[k] >= 0:
+            occupied[ix[k], iy[k]] = True
+
+
+@numba.njit(cache=True)
+def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
+    """Mark the cells whose centre lies in an oriented box grown by half a cell.
+
+    Box b: centre ``centers[b]``, (length, width) ``sizes[b]``, yaw ``yaws_deg[b]``. Cells are
+    searched over the box's axis-aligned bounds (its corners), as in the cost-map docs.
+    """
+    nx = occupied.shape[0]
+    ny = occupied.shape[1]
+    for b in range(centers.shape[0]):
+        a = math.radians(yaws_deg[b])
+        ca = math.cos(a)
+        sa = math.sin(a)
+        cx = centers[b, 0]
+        cy = centers[b, 1]
+        ux = ca * sizes[b, 0] / 2
+        uy = sa * sizes[b, 0] / 2
+        vx = -sa * sizes[b, 1] / 2
+        vy = ca * sizes[b, 1] / 2
+        lo_x = min(min(cx + ux + vx, cx - ux + vx), min(cx - ux - vx, cx + ux - vx))
+        hi_x = max(max(cx + ux + vx, cx - ux + vx), max(cx - ux - vx, cx + ux - vx))
+        lo_y = min(min(cy + uy + vy, cy - uy + vy), min(cy - uy - vy, cy + uy - vy))
+        hi_y = max(max(cy + uy + vy, cy - uy + vy), max(cy - uy - vy, cy + uy - vy))
+        i0 = max(int(math.floor((lo_x - x_min) / cell_size)), 0)
+        i1 = min(int(math.ceil((hi_x - x_min) / cell_size)) + 1, nx)
+        j0 = max(int(math.floor((lo_y - y_min) / cell_size)), 0)
+        j1 = min(int(math.ceil((hi_y - y_min) / cell_size)) + 1, ny)
+        half_u = sizes[b, 0] / 2 + cell_size / 2
+        half_v = sizes[b, 1] / 2 + cell_size / 2
+        for i in range(i0, i1):
+            dx = x_min + (i + 0.5) * cell_size - cx
+            for j in range(j0, j1):
+                dy = y_min + (j + 0.5) * cell_size - cy
+                u = dx * ca + dy * sa
+                v = -dx * sa + dy * ca
+                if abs(u) <= half_u and abs(v) <= half_v:
+                    occupied[i, j] = True
+
+
+@numba.njit(cache=True)
+def cost_cells(gx, gy, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
+               lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost,
+               free_state, unknown_state):
+    """The cost formula of docs/obstacles.md on every cell, before inflation.
+
+    From the surface gradient (gx, gy; NaN outside the surface) and the per-cell point
+    statistics: slope (deg), step = max(0, highest), roughness = RMS (NaN where undefined),
+    cost, lethal (slope over the limit, step over the lethal step, or occupied) and state
+    (``free_state`` where the cell has a point, else ``unknown_state``).
+    """
+    nx = gx.shape[0]
+    ny = gx.shape[1]
+    slope = np.empty((nx, ny))
+    step = np.empty((nx, ny))
+    rough = np.empty((nx, ny))
+    cost = np.empty((nx, ny))
+    lethal = np.zeros((nx, ny), np.bool_)
+    state = np.empty((nx, ny), np.uint8)
+    total = w_slope + w_step + w_rough
+    to_deg = 180.0 / math.pi
+    for i in range(nx):
+        for j in range(ny):
+            g = math.hypot(gx[i, j], gy[i, j])
+            sl = math.atan(g) * to_deg
+            slope[i, j] = sl
+            if math.isfinite(sl):
+                slope_term = (sl / max_slope_deg) ** 2
+                is_lethal = sl > max_slope_deg
+            else:
+                slope_term = 1.0
+                is_lethal = False
+            known = count[i, j] > 0
+            if known:
+                st = max(highest[i, j], 0.0)
+                step[i, j] = st
+                step_term = (st / lethal_step) ** 2
+                is_lethal = is_lethal or st > lethal_step
+                state[i, j] = free_state
+            else:
+                step[i, j] = np.nan
+                step_term = 0.0
+                state[i, j] = unknown_state
+            if rough_n[i, j] > 0:
+                ro = math.sqrt(rough_sum2[i, j] / rough_n[i, j])
+                rough[i, j] = ro
+                rough_term = min(ro / max_roughness, 1.0) ** 2
+            else:
+                rough[i, j] = np.nan
+                rough_term = 0.0
+            if known:
+                cost[i, j] = (w_slope * slope_term + w_step * step_term
+                              + w_rough * rough_term) / total
+            else:
+                cost[i, j] = max(w_slope * slope_term / total, unknown_cost)
+            lethal[i, j] = is_lethal or occupied[i, j]
+    return slope, step, rough, cost, lethal, state
+
+
+@numba.njit(cache=True)
+def inflate(cost, state, lethal, distance, inscribed_radius, circumscribed_radius,
+            inflation_scale, inscribed_state, lethal_state):
+    """Inflation by the footprint, in place: cells within ``inscribed_radius`` of a lethal cell
+    (``distance``, m) become INSCRIBED, out to ``circumscribed_radius`` the cost is at least
+    0.99 exp(-(d - r_in) / inflation_scale); lethal cells LETHAL; every other cost capped at
+    0.99 and INSCRIBED/LETHAL cells cost 1."""
+    nx = cost.shape[0]
+    ny = cost.shape[1]
+    for i in range(nx):
+        for j in range(ny):
+            if lethal[i, j]:
+                state[i, j] = lethal_state
+                cost[i, j] = 1.0
+                continue
+            d = distance[i, j]
+            if d <= inscribed_radius:
+                state[i, j] = inscribed_state
+                cost[i, j] = 1.0
+                continue
+            c = cost[i, j]
+            if d <= circumscribed_radius:
+                c = max(c, 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale))
+            cost[i, j] = min(c, 0.99)
