@@ -167,6 +167,29 @@ def oriented_box(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return origin + np.array([cx, cy]), np.array([float(w), float(h)]), float(angle)
 
 
+def _oriented_boxes(xy: np.ndarray, starts: np.ndarray) -> list:
+    """:func:`oriented_box` of each group ``xy[starts[g]:starts[g + 1]]`` (same arithmetic),
+    with the coordinate shift and float32 conversion done once for all groups."""
+    import cv2
+
+    counts = np.diff(starts)
+    firsts = xy[starts[:-1]]
+    relative = (xy - np.repeat(firsts, counts, axis=0)).astype(np.float32)
+    out = []
+    for g in range(len(counts)):
+        (cx, cy), (w, h), angle = cv2.minAreaRect(relative[starts[g]:starts[g + 1]])
+        if h > w:
+            w, h = h, w
+            angle += 90.0
+        while angle > 90.0:
+            angle -= 180.0
+        while angle <= -90.0:
+            angle += 180.0
+        out.append((firsts[g] + np.array([cx, cy]), np.array([float(w), float(h)]),
+                    float(angle)))
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # inputs
 
@@ -269,23 +292,18 @@ def _hull_candidates(points: np.ndarray, cluster: np.ndarray, ix, iy, nx: int, n
 
     Cells are keyed by (cluster, cell), so clusters that share a cell (DBSCAN) stay apart.
     """
-    inside = cluster >= 0
-    flat = ix * ny + iy
-    if grid_method:  # the cluster is a function of the cell: rank cells through a dense mask
-        mask = np.zeros(nx * ny, np.int64)
-        mask[flat[inside]] = 1
-        rank_of = np.cumsum(mask) - 1
-        n_cells = int(rank_of[-1]) + 1
-        cell = np.where(inside, rank_of[flat], 0)
+    if grid_method:  # the cluster is a function of the cell
+        candidates = _k.hull_candidates_by_cell(cluster, ix, iy, ny, nx * ny,
+                                                points[:, 0], points[:, 1])
     else:
-        key = cluster * (nx * ny) + flat
+        inside = cluster >= 0
+        key = cluster * (nx * ny) + ix * ny + iy
         unique, rank = np.unique(key[inside], return_inverse=True)
-        n_cells = len(unique)
         cell = np.zeros(len(points), np.int64)
         cell[inside] = rank
-    sub = np.flatnonzero(inside)
-    best = _k.hull_candidates(cell[sub], points[sub, 0], points[sub, 1], n_cells)
-    candidates = np.unique(sub[best[best >= 0]])
+        sub = np.flatnonzero(inside)
+        best = _k.hull_candidates(cell[sub], points[sub, 0], points[sub, 1], len(unique))
+        candidates = np.unique(sub[best[best >= 0]])
     order, starts = _k.group_by(cluster[candidates], n_clusters)
     return candidates[order], starts
 
@@ -355,12 +373,15 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     order, starts = _k.group_by(point_ids, len(kept))
     hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept),
                                          method == "grid")
+    boxes = _oriented_boxes(points[hull, :2], hull_starts)
+    indices_all = members[order]
+    centroids = sums[kept] / count[kept][:, None]
     obstacles = []
     for new, old in enumerate(kept):
-        indices = members[order[starts[new]:starts[new + 1]]]
-        center, size, yaw = oriented_box(points[hull[hull_starts[new]:hull_starts[new + 1]], :2])
+        indices = indices_all[starts[new]:starts[new + 1]]
+        center, size, yaw = boxes[new]
         obstacles.append(DetectedObstacle(
-            id=new, indices=indices, centroid=sums[old] / count[old], box_center=center,
+            id=new, indices=indices, centroid=centroids[new], box_center=center,
             box_size=size, box_yaw_deg=yaw, height=float(h_high[old]), z_min=float(z_low[old]),
             z_max=float(z_high[old])))
     return ObstacleSet(tuple(obstacles), cluster_ids, method, options)

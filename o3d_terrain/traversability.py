@@ -452,14 +452,9 @@ def traversability_cost(surface, cloud: Any = None, *,
     xc = x_min + (np.arange(nx) + 0.5) * cell_size
     yc = y_min + (np.arange(ny) + 0.5) * cell_size
 
-    # slope from the surface's derivatives
-    _, gx, gy = surface_on_grid(surface, xc, yc)
-
     # step and roughness from the points, occupancy from the obstacles
-    count = np.zeros((nx, ny), np.int32)
-    highest = np.full((nx, ny), -np.inf)
-    rn = np.zeros((nx, ny), np.int32)
-    rs2 = np.zeros((nx, ny))
+    count = rn = np.zeros((nx, ny), np.int32)
+    highest = rs2 = np.zeros((nx, ny))
     occupied = np.zeros((nx, ny), bool)
     lethal_step = profile.lethal_step
     if cloud is not None:
@@ -475,7 +470,7 @@ def traversability_cost(surface, cloud: Any = None, *,
             ix, iy = _k.bin_points(np.ascontiguousarray(positions[:, 0]),
                                    np.ascontiguousarray(positions[:, 1]),
                                    x_min, y_min, cell_size, nx, ny)
-            count, highest, rn, _, rs2 = _k.cell_statistics(
+            count, highest, rn, rs2 = _k.cell_moments(
                 ix, iy, np.ascontiguousarray(heights), use, nx, ny, lethal_step)
             if obstacles is not None:
                 tall = [o for o in obstacles if o.height > lethal_step]
@@ -488,10 +483,13 @@ def traversability_cost(surface, cloud: Any = None, *,
                                       np.array([o.box_yaw_deg for o in tall], np.float64),
                                       float(x_min), float(y_min), float(cell_size), occupied)
 
-    # the cost formula
+    # the cost formula, with the slope from the surface's analytic derivatives
+    x0, y0, _ = surface.origin
     slope, step, rough, cost, lethal, state = _k.cost_cells(
-        gx, gy, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
-        profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE, UNKNOWN)
+        xc - x0, yc - y0, surface.knots_x, surface.knots_y, surface.degree,
+        surface.control_points, surface.weights, 1e-9, count, highest, rn, rs2, occupied,
+        profile.max_slope_deg, lethal_step, profile.max_roughness, w[0], w[1], w[2],
+        float(unknown_cost), FREE, UNKNOWN)
 
     # inflation by the footprint
     if lethal.any():
@@ -511,6 +509,5 @@ def traversability_cost(surface, cloud: Any = None, *,
     options = {"cell_size": float(cell_size), "unknown_cost": float(unknown_cost),
                "weights": list(w), "inflation_scale": float(inflation_scale),
                "fill_obstacle_boxes": bool(fill_obstacle_boxes)}
-    return CostMap(float(x_min), float(y_min), float(cell_size), cost.astype(np.float32),
-                   state, slope.astype(np.float32), step.astype(np.float32),
-                   rough.astype(np.float32), profile, options)
+    return CostMap(float(x_min), float(y_min), float(cell_size), cost, state, slope, step,
+                   rough, profile, options)

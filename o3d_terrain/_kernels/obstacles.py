@@ -7,6 +7,8 @@ import math
 import numba
 import numpy as np
 
+from . import bspline as _bs
+
 
 @numba.njit(cache=True)
 def bin_points(x, y, x_min, y_min, cell_size, nx, ny):
@@ -190,37 +192,141 @@ def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
 
 
 @numba.njit(cache=True)
-def cost_cells(gx, gy, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
-               lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost,
-               free_state, unknown_state):
-    """The cost formula of docs/obstacles.md on every cell, before inflation.
+def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
+    """Per-cell count, highest h, and count and sum of squares of h over points with
+    h <= rough_cap (the statistics of :func:`cell_statistics` the cost map needs).
 
-    From the surface gradient (gx, gy; NaN outside the surface) and the per-cell point
-    statistics: slope (deg), step = max(0, highest), roughness = RMS (NaN where undefined),
-    cost, lethal (slope over the limit, step over the lethal step, or occupied) and state
-    (``free_state`` where the cell has a point, else ``unknown_state``).
+    Only points with ``use[k]``, a cell (ix >= 0) and a finite h count.
     """
-    nx = gx.shape[0]
-    ny = gx.shape[1]
-    slope = np.empty((nx, ny))
-    step = np.empty((nx, ny))
-    rough = np.empty((nx, ny))
-    cost = np.empty((nx, ny))
-    lethal = np.zeros((nx, ny), np.bool_)
+    count = np.zeros((nx, ny), np.int32)
+    highest = np.full((nx, ny), -np.inf)
+    rough_n = np.zeros((nx, ny), np.int32)
+    rough_sum2 = np.zeros((nx, ny))
+    for k in range(ix.shape[0]):
+        i = ix[k]
+        if i < 0 or not use[k]:
+            continue
+        v = h[k]
+        if not math.isfinite(v):
+            continue
+        j = iy[k]
+        count[i, j] += 1
+        if v > highest[i, j]:
+            highest[i, j] = v
+        if v <= rough_cap:
+            rough_n[i, j] += 1
+            rough_sum2[i, j] += v * v
+    return count, highest, rough_n, rough_sum2
+
+
+@numba.njit(cache=True)
+def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, highest, rough_n,
+               rough_sum2, occupied, max_slope_deg, lethal_step, max_roughness, w_slope, w_step,
+               w_rough, unknown_cost, free_state, unknown_state):
+    """The cost formula of docs/obstacles.md on every cell (x[i], y[j]), before inflation.
+
+    The slope atan |grad S| (degrees) comes from the rational surface (local coordinates
+    x, y; NaN outside the knot range widened by ``tol``), contracted along x once per row;
+    step = max(0, highest), roughness = RMS (NaN where the cell has no point). Returns
+    float32 ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit,
+    step over the lethal step, or occupied) and uint8 ``state`` (``free_state`` where the
+    cell has a point, else ``unknown_state``). Decisions are taken in float64.
+    """
+    nx = x.shape[0]
+    ny = y.shape[0]
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    slope = np.empty((nx, ny), np.float32)
+    step = np.empty((nx, ny), np.float32)
+    rough = np.empty((nx, ny), np.float32)
+    cost = np.empty((nx, ny), np.float32)
+    lethal = np.empty((nx, ny), np.bool_)
     state = np.empty((nx, ny), np.uint8)
     total = w_slope + w_step + w_rough
     to_deg = 180.0 / math.pi
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    span_y = np.full(ny, -1, np.int64)
+    by = np.zeros((ny, p + 1))
+    dby = np.zeros((ny, p + 1))
+    tmp = np.empty(p + 1)
+    dtmp = np.empty(p + 1)
+    ky0 = knots_y[0]
+    ky1 = knots_y[knots_y.shape[0] - 1]
+    for j in range(ny):
+        t = y[j]
+        if not (t >= ky0 - tol and t <= ky1 + tol):
+            continue
+        t = min(max(t, ky0), ky1)
+        sj = _bs.find_span(n1, p, t, knots_y)
+        span_y[j] = sj
+        _bs.basis_funs_first_derivative(sj, t, p, knots_y, tmp, dtmp, left, right)
+        for b in range(p + 1):
+            by[j, b] = tmp[b]
+            dby[j, b] = dtmp[b]
+    rq = weights * control
+    a_row = np.empty(n1)
+    d_row = np.empty(n1)
+    ax_row = np.empty(n1)
+    dx_row = np.empty(n1)
+    bx = np.empty(p + 1)
+    dbx = np.empty(p + 1)
+    kx0 = knots_x[0]
+    kx1 = knots_x[knots_x.shape[0] - 1]
     for i in range(nx):
+        t = x[i]
+        row_inside = t >= kx0 - tol and t <= kx1 + tol
+        if row_inside:
+            t = min(max(t, kx0), kx1)
+            sx = _bs.find_span(n0, p, t, knots_x)
+            _bs.basis_funs_first_derivative(sx, t, p, knots_x, bx, dbx, left, right)
+            for b in range(n1):
+                a = 0.0
+                d = 0.0
+                ax = 0.0
+                dx = 0.0
+                for k in range(p + 1):
+                    r = weights[sx - p + k, b]
+                    q = rq[sx - p + k, b]
+                    a += bx[k] * q
+                    d += bx[k] * r
+                    ax += dbx[k] * q
+                    dx += dbx[k] * r
+                a_row[b] = a
+                d_row[b] = d
+                ax_row[b] = ax
+                dx_row[b] = dx
         for j in range(ny):
-            g = math.hypot(gx[i, j], gy[i, j])
-            sl = math.atan(g) * to_deg
-            slope[i, j] = sl
-            if math.isfinite(sl):
+            sy = span_y[j]
+            if row_inside and sy >= 0:
+                a = 0.0
+                d = 0.0
+                ax = 0.0
+                dx = 0.0
+                ay = 0.0
+                dy = 0.0
+                for k in range(p + 1):
+                    b = sy - p + k
+                    v = by[j, k]
+                    w = dby[j, k]
+                    a += v * a_row[b]
+                    d += v * d_row[b]
+                    ax += v * ax_row[b]
+                    dx += v * dx_row[b]
+                    ay += w * a_row[b]
+                    dy += w * d_row[b]
+                sv = a / d
+                gx = (ax - sv * dx) / d
+                gy = (ay - sv * dy) / d
+                sl = math.atan(math.sqrt(gx * gx + gy * gy)) * to_deg
                 slope_term = (sl / max_slope_deg) ** 2
                 is_lethal = sl > max_slope_deg
             else:
+                sl = np.nan
                 slope_term = 1.0
                 is_lethal = False
+            slope[i, j] = sl
             known = count[i, j] > 0
             if known:
                 st = max(highest[i, j], 0.0)
@@ -268,7 +374,43 @@ def inflate(cost, state, lethal, distance, inscribed_radius, circumscribed_radiu
                 state[i, j] = inscribed_state
                 cost[i, j] = 1.0
                 continue
-            c = cost[i, j]
+            c = float(cost[i, j])
             if d <= circumscribed_radius:
                 c = max(c, 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale))
             cost[i, j] = min(c, 0.99)
+
+
+@numba.njit(cache=True)
+def hull_candidates_by_cell(cluster, ix, iy, ny, n_cells, x, y):
+    """Sorted indices of the points extreme along x, y, x + y and x - y (both signs) in their
+    cell, over the points with ``cluster >= 0`` (cell = ix * ny + iy, < n_cells).
+
+    The same candidates as :func:`hull_candidates` on cells ranked in point order (ties go to
+    the first point), for clusterings where every cell belongs to one cluster.
+    """
+    slot = np.full(n_cells, -1, np.int64)
+    n_slots = 0
+    for k in range(cluster.shape[0]):
+        if cluster[k] >= 0:
+            c = ix[k] * ny + iy[k]
+            if slot[c] < 0:
+                slot[c] = n_slots
+                n_slots += 1
+    best = np.full((n_slots, 8), -1, np.int64)
+    value = np.empty((n_slots, 8))
+    for k in range(cluster.shape[0]):
+        if cluster[k] < 0:
+            continue
+        c = slot[ix[k] * ny + iy[k]]
+        a = x[k]
+        b = y[k]
+        keys = (a, -a, b, -b, a + b, -a - b, a - b, b - a)
+        for d in range(8):
+            if best[c, d] < 0 or keys[d] > value[c, d]:
+                best[c, d] = k
+                value[c, d] = keys[d]
+    mark = np.zeros(cluster.shape[0], np.bool_)
+    for c in range(n_slots):
+        for d in range(8):
+            mark[best[c, d]] = True
+    return np.flatnonzero(mark)
