@@ -167,16 +167,20 @@ def oriented_box(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return origin + np.array([cx, cy]), np.array([float(w), float(h)]), float(angle)
 
 
-def _oriented_boxes(xy: np.ndarray, starts: np.ndarray) -> list:
-    """:func:`oriented_box` of each group ``xy[starts[g]:starts[g + 1]]`` (same arithmetic),
-    with the coordinate shift and float32 conversion done once for all groups."""
+def _oriented_boxes(xy: np.ndarray, starts: np.ndarray):
+    """:func:`oriented_box` of each group ``xy[starts[g]:starts[g + 1]]`` (same arithmetic):
+    (centers (K, 2), sizes (K, 2), yaws (K,)), with the coordinate shift and the float32
+    conversion done once for all groups."""
     import cv2
 
     counts = np.diff(starts)
     firsts = xy[starts[:-1]]
     relative = (xy - np.repeat(firsts, counts, axis=0)).astype(np.float32)
-    out = []
-    for g in range(len(counts)):
+    k = len(counts)
+    offsets = np.empty((k, 2))
+    sizes = np.empty((k, 2))
+    yaws = np.empty(k)
+    for g in range(k):
         (cx, cy), (w, h), angle = cv2.minAreaRect(relative[starts[g]:starts[g + 1]])
         if h > w:
             w, h = h, w
@@ -185,9 +189,10 @@ def _oriented_boxes(xy: np.ndarray, starts: np.ndarray) -> list:
             angle -= 180.0
         while angle <= -90.0:
             angle += 180.0
-        out.append((firsts[g] + np.array([cx, cy]), np.array([float(w), float(h)]),
-                    float(angle)))
-    return out
+        offsets[g] = cx, cy
+        sizes[g] = w, h
+        yaws[g] = angle
+    return firsts + offsets, sizes, yaws
 
 
 # ---------------------------------------------------------------------------------------------
@@ -251,17 +256,14 @@ def resolve_heights_and_labels(frame, surface=None, labels=None, heights=None,
 # clustering
 
 
-def _cells(points: np.ndarray, cell_size: float) -> tuple[np.ndarray, np.ndarray, int, int]:
-    low = points[:, :2].min(axis=0)
-    ix = np.floor((points[:, 0] - low[0]) / cell_size).astype(np.int64)
-    iy = np.floor((points[:, 1] - low[1]) / cell_size).astype(np.int64)
+def _grid_size(ix: np.ndarray, iy: np.ndarray, cell_size: float) -> tuple[int, int]:
     nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
     if nx * ny > MAX_CLUSTER_CELLS:
         raise InputError(
             f"detect_obstacles: the obstacle points span {nx * cell_size:.0f} m x "
             f"{ny * cell_size:.0f} m, {nx * ny} cells of {cell_size} m (limit "
             f"{MAX_CLUSTER_CELLS}); use a larger cell_size or crop the cloud")
-    return ix, iy, nx, ny
+    return nx, ny
 
 
 def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int, ny: int) -> np.ndarray:
@@ -347,23 +349,20 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     heights, labels = resolve_heights_and_labels(frame, surface, labels, heights_above_terrain,
                                                  threshold)
     positions = np.asarray(frame.positions)
-    select = (labels == TerrainLabel.OBSTACLE) & np.isfinite(positions).all(axis=1)
-    select &= np.isfinite(heights)
-    if max_height is not None:
-        select &= heights <= max_height
-    members = np.flatnonzero(select)
+    members, points, ix, iy = _k.obstacle_points(
+        np.ascontiguousarray(labels), positions, np.ascontiguousarray(heights),
+        int(TerrainLabel.OBSTACLE), np.inf if max_height is None else float(max_height),
+        float(cell_size))
     if len(members) == 0:
         return ObstacleSet((), cluster_ids, method, options)
-    points = positions[members]
-    ix, iy, nx, ny = _cells(points, float(cell_size))
+    nx, ny = _grid_size(ix, iy, float(cell_size))
     if method == "grid":
         component = _grid_components(ix, iy, nx, ny)
     else:
         component = _dbscan_components(points, float(eps), min(3, int(min_points)))
     n_components = int(component.max()) + 1 if len(component) else 0
     count, sums, z_low, z_high, h_high = _k.cluster_moments(
-        component, points[:, 0].copy(), points[:, 1].copy(), points[:, 2].copy(),
-        heights[members], n_components)
+        component, points[:, 0], points[:, 1], points[:, 2], heights[members], n_components)
     keep = (count >= min_points) & (h_high >= min_height)
     kept = np.flatnonzero(keep)
     new_id = np.full(max(n_components, 1), -1, np.int64)
@@ -373,16 +372,16 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     order, starts = _k.group_by(point_ids, len(kept))
     hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept),
                                          method == "grid")
-    boxes = _oriented_boxes(points[hull, :2], hull_starts)
+    centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
     indices_all = members[order]
     centroids = sums[kept] / count[kept][:, None]
     obstacles = []
     for new, old in enumerate(kept):
         indices = indices_all[starts[new]:starts[new + 1]]
-        center, size, yaw = boxes[new]
         obstacles.append(DetectedObstacle(
-            id=new, indices=indices, centroid=centroids[new], box_center=center,
-            box_size=size, box_yaw_deg=yaw, height=float(h_high[old]), z_min=float(z_low[old]),
+            id=new, indices=indices, centroid=centroids[new], box_center=centers[new],
+            box_size=sizes[new], box_yaw_deg=float(yaws[new]), height=float(h_high[old]),
+            z_min=float(z_low[old]),
             z_max=float(z_high[old])))
     return ObstacleSet(tuple(obstacles), cluster_ids, method, options)
 

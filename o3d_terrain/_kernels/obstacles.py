@@ -388,7 +388,7 @@ def hull_candidates_by_cell(cluster, ix, iy, ny, n_cells, x, y):
     The same candidates as :func:`hull_candidates` on cells ranked in point order (ties go to
     the first point), for clusterings where every cell belongs to one cluster.
     """
-    slot = np.full(n_cells, -1, np.int64)
+    slot = np.full(n_cells, -1, np.int32)
     n_slots = 0
     for k in range(cluster.shape[0]):
         if cluster[k] >= 0:
@@ -414,3 +414,49 @@ def hull_candidates_by_cell(cluster, ix, iy, ny, n_cells, x, y):
         for d in range(8):
             mark[best[c, d]] = True
     return np.flatnonzero(mark)
+
+
+@numba.njit(cache=True)
+def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell_size):
+    """The obstacle points of a cloud and their clustering cells, in one pass each.
+
+    Selects the points labelled ``obstacle_label`` with finite x, y, z and height, and height
+    <= ``max_height`` (use inf for no limit). Returns ``members`` (their indices, increasing),
+    ``points`` (M, 3) copies, and the cells ``ix``, ``iy`` of side ``cell_size`` counted from
+    the lowest x and y of the selected points (floor((x - x_low) / cell_size)).
+    """
+    n = labels.shape[0]
+    keep = np.zeros(n, np.bool_)
+    m = 0
+    x_low = np.inf
+    y_low = np.inf
+    for k in range(n):
+        if labels[k] != obstacle_label:
+            continue
+        x = positions[k, 0]
+        y = positions[k, 1]
+        h = heights[k]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(positions[k, 2])
+                and math.isfinite(h)) or h > max_height:
+            continue
+        keep[k] = True
+        m += 1
+        if x < x_low:
+            x_low = x
+        if y < y_low:
+            y_low = y
+    members = np.empty(m, np.int64)
+    points = np.empty((m, 3))
+    ix = np.empty(m, np.int64)
+    iy = np.empty(m, np.int64)
+    t = 0
+    for k in range(n):
+        if keep[k]:
+            members[t] = k
+            points[t, 0] = positions[k, 0]
+            points[t, 1] = positions[k, 1]
+            points[t, 2] = positions[k, 2]
+            ix[t] = int(math.floor((positions[k, 0] - x_low) / cell_size))
+            iy[t] = int(math.floor((positions[k, 1] - y_low) / cell_size))
+            t += 1
+    return members, points, ix, iy
