@@ -339,14 +339,16 @@ def basis_funs_scratch(span, t, degree, knots, out, left, right):
         out[j] = saved
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
     """Signed height z - S(x, y) of each point of an (N, >= 3) array, in one pass.
 
     ``origin_*``: the surface's local origin (positions are world coordinates). Points with a
     non-finite coordinate or with (x, y) outside the knot range widened by ``tol_x``/``tol_y``
-    give NaN. """
+    give NaN. Chunks of points are split over threads; every point is computed alone, so the
+    result does not depend on the thread count.
+    """
     n = positions.shape[0]
     p = degree
     out = np.empty(n)
@@ -360,7 +362,7 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     inv_wy = (n1 - p) / (knots_y[n1] - knots_y[p])
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
-    for c in range(n_chunks):
+    for c in numba.prange(n_chunks):
         bx = np.empty(p + 1)
         by = np.empty(p + 1)
         left = np.empty(p + 1)
@@ -406,14 +408,16 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, knots_y, degree,
                             control, weights, with_derivatives):
     """:func:`rational_surface` at world points (x[k], y[k]) of a surface with local origin
     (origin_x, origin_y), spans found in O(1) on the uniform knots.
 
     NaN for non-finite input and for points outside the knot range widened by
-    ``tol_x``/``tol_y``; points within the tolerance use the end span.
+    ``tol_x``/``tol_y``; points within the tolerance use the end span. Chunks of points are
+    split over threads; every point is computed alone, so the result does not depend on the
+    thread count.
     """
     n = x.shape[0]
     p = degree
@@ -430,7 +434,7 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
     hi_y = knots_y[knots_y.shape[0] - 1] + tol_y
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
-    for c in range(n_chunks):
+    for c in numba.prange(n_chunks):
         bx = np.empty(p + 1)
         by = np.empty(p + 1)
         dbx = np.zeros(p + 1)

@@ -219,7 +219,7 @@ def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
     return count, highest, rough_n, rough_sum2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, highest, rough_n,
                rough_sum2, occupied, max_slope_deg, lethal_step, max_roughness, w_slope, w_step,
                w_rough, unknown_cost, free_state, unknown_state):
@@ -230,7 +230,9 @@ def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, hig
     step = max(0, highest), roughness = RMS (NaN where the cell has no point). Returns
     float32 ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit,
     step over the lethal step, or occupied) and uint8 ``state`` (``free_state`` where the
-    cell has a point, else ``unknown_state``). Decisions are taken in float64.
+    cell has a point, else ``unknown_state``). Decisions are taken in float64. Rows are
+    split over threads; every cell is computed alone, so the result does not depend on the
+    thread count.
     """
     nx = x.shape[0]
     ny = y.shape[0]
@@ -266,21 +268,24 @@ def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, hig
             by[j, b] = tmp[b]
             dby[j, b] = dtmp[b]
     rq = weights * control
-    a_row = np.empty(n1)
-    d_row = np.empty(n1)
-    ax_row = np.empty(n1)
-    dx_row = np.empty(n1)
-    bx = np.empty(p + 1)
-    dbx = np.empty(p + 1)
     kx0 = knots_x[0]
     kx1 = knots_x[knots_x.shape[0] - 1]
-    for i in range(nx):
+    for i in numba.prange(nx):
+        a_row = np.empty(n1)
+        d_row = np.empty(n1)
+        ax_row = np.empty(n1)
+        dx_row = np.empty(n1)
+        bx = np.empty(p + 1)
+        dbx = np.empty(p + 1)
+        lft = np.empty(p + 1)
+        rgt = np.empty(p + 1)
+        sx = 0
         t = x[i]
         row_inside = t >= kx0 - tol and t <= kx1 + tol
         if row_inside:
             t = min(max(t, kx0), kx1)
             sx = _bs.find_span(n0, p, t, knots_x)
-            _bs.basis_funs_first_derivative(sx, t, p, knots_x, bx, dbx, left, right)
+            _bs.basis_funs_first_derivative(sx, t, p, knots_x, bx, dbx, lft, rgt)
             for b in range(n1):
                 a = 0.0
                 d = 0.0
