@@ -384,16 +384,17 @@ class GridBasis:
             mask = np.ones((self.spans_x.size, self.spans_y.size), bool)
         args = (self.spans_x, self.basis_x, self.spans_y, self.basis_y)
         if weights is None:
-            return _tk.grid_evaluate(*args, np.ascontiguousarray(control), mask)
-        num = _tk.grid_evaluate(*args, np.ascontiguousarray(weights * control), mask)
-        den = _tk.grid_evaluate(*args, np.ascontiguousarray(weights), mask)
-        return np.divide(num, den, out=np.zeros_like(num), where=mask)
+            return _bs.grid_rational(*args, np.ascontiguousarray(control, dtype=np.float64),
+                                     np.zeros((0, 0)), mask)
+        return _bs.grid_rational(*args, np.ascontiguousarray(weights * control),
+                                 np.ascontiguousarray(weights, dtype=np.float64), mask)
 
     def denominator(self, weights: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         if mask is None:
             mask = np.ones((self.spans_x.size, self.spans_y.size), bool)
-        return _tk.grid_evaluate(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
-                                 np.ascontiguousarray(weights), mask)
+        return _bs.grid_rational(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
+                                 np.ascontiguousarray(weights, dtype=np.float64),
+                                 np.zeros((0, 0)), mask)
 
     def project(self, values: np.ndarray) -> np.ndarray:
         """Bx^T V By: grid values gathered onto the control grid, (n0, n1)."""
@@ -423,9 +424,8 @@ class GridBasis:
                                            np.ascontiguousarray(rv), self.n0, self.n1,
                                            self.degree, self.bandwidth)
         if rational_weights is not None:
-            r = rational_weights.ravel()
-            for d_ in range(band.shape[0]):
-                band[d_, : band.shape[1] - d_] *= r[: r.size - d_] * r[d_:]
+            r = np.ascontiguousarray(rational_weights, dtype=np.float64).ravel()
+            _bs.scale_band(band, r)
             rhs *= r
         scale = max(float(band[0].mean()), 1e-12)
         if smoothing > 0:

@@ -339,7 +339,7 @@ def basis_funs_scratch(span, t, degree, knots, out, left, right):
         out[j] = saved
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
     """Signed height z - S(x, y) of each point of an (N, >= 3) array, in one pass.
@@ -408,7 +408,7 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, knots_y, degree,
                             control, weights, with_derivatives):
     """:func:`rational_surface` at world points (x[k], y[k]) of a surface with local origin
@@ -568,7 +568,7 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
     return np.ascontiguousarray(lower.T), rhs
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_x, tol_y):
     """Rational surface and first derivatives at every grid node (x[i], y[j]) (local
     coordinates): ``z, dz_dx, dz_dy`` shaped (len(x), len(y)), NaN where x[i] or y[j] lies
@@ -664,3 +664,64 @@ def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_
             gx[i, j] = (ax - s * dx) / d
             gy[i, j] = (ay - s * dy) / d
     return z, gx, gy
+
+
+@numba.njit(cache=True)
+def scale_band(band, r):
+    """In place: band[d, k] *= r[k] r[k + d] (A -> diag(r) A diag(r) in lower band storage)."""
+    size = band.shape[1]
+    for d in range(band.shape[0]):
+        for k in range(size - d):
+            band[d, k] *= r[k] * r[k + d]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, mask):
+    """(Bx N By^T) / (Bx D By^T) at the cells where ``mask`` is true (0 elsewhere): a rational
+    tensor-product spline (N = R * Q, D = R) at grid-cell centres.
+
+    The product is contracted along y once per grid column (for every control row a,
+    sum_b By[j, b] N[a, b]), then each cell sums degree + 1 terms along x. The operations and
+    their order per cell are those of the cell-by-cell sum, so the values are identical to it.
+    With ``denominator`` of size 0 the result is the plain spline Bx N By^T.
+    """
+    p = basis_x.shape[1] - 1
+    m0 = spans_x.shape[0]
+    m1 = spans_y.shape[0]
+    n0 = numerator.shape[0]
+    rational = denominator.shape[0] > 0
+    out = np.zeros((m0, m1))
+    col_n = np.zeros((m1, n0))
+    col_d = np.zeros((m1, n0)) if rational else np.zeros((0, 0))
+    for j in range(m1):
+        used = False
+        for i in range(m0):
+            if mask[i, j]:
+                used = True
+                break
+        if not used:
+            continue
+        sy = spans_y[j] - p
+        for a in range(n0):
+            acc_n = 0.0
+            acc_d = 0.0
+            for b in range(p + 1):
+                acc_n += basis_y[j, b] * numerator[a, sy + b]
+                if rational:
+                    acc_d += basis_y[j, b] * denominator[a, sy + b]
+            col_n[j, a] = acc_n
+            if rational:
+                col_d[j, a] = acc_d
+    for i in range(m0):
+        sx = spans_x[i] - p
+        for j in range(m1):
+            if not mask[i, j]:
+                continue
+            acc_n = 0.0
+            acc_d = 0.0
+            for a in range(p + 1):
+                acc_n += basis_x[i, a] * col_n[j, sx + a]
+                if rational:
+                    acc_d += basis_x[i, a] * col_d[j, sx + a]
+            out[i, j] = acc_n / acc_d if rational else acc_n
+    return out

@@ -219,7 +219,7 @@ def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
     return count, highest, rough_n, rough_sum2
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, highest, rough_n,
                rough_sum2, occupied, max_slope_deg, lethal_step, max_roughness, w_slope, w_step,
                w_rough, unknown_cost, free_state, unknown_state):
