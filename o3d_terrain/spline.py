@@ -367,15 +367,29 @@ class GridBasis:
         self.spans_y, vy = _bs.basis_table(y_local, n1, degree, self.knots_y, 0)
         self.basis_x = np.ascontiguousarray(vx[:, 0, :])
         self.basis_y = np.ascontiguousarray(vy[:, 0, :])
-        self.matrix_x = _dense(self.spans_x, self.basis_x, n0, degree)
-        self.matrix_y = _dense(self.spans_y, self.basis_y, n1, degree)
+        self._matrix_x: np.ndarray | None = None
+        self._matrix_y: np.ndarray | None = None
         self.bandwidth = max(degree * n1 + degree, 2 * n1)
         hx = (x_max - x_min) / max(n0 - 1, 1)
         hy = (y_max - y_min) / max(n1 - 1, 1)
         self.penalty_weights = (hy * hy / (hx * hx), 2.0, hx * hx / (hy * hy))
         p = self.degree
-        self.greville_x = np.array([self.knots_x[a + 1:a + p + 1].mean() for a in range(n0)])
-        self.greville_y = np.array([self.knots_y[b + 1:b + p + 1].mean() for b in range(n1)])
+        self.greville_x = _greville(self.knots_x, n0, p)
+        self.greville_y = _greville(self.knots_y, n1, p)
+
+    @property
+    def matrix_x(self) -> np.ndarray:
+        """Dense (m0, n0) basis matrix along x (built on first use)."""
+        if self._matrix_x is None:
+            self._matrix_x = _dense(self.spans_x, self.basis_x, self.n0, self.degree)
+        return self._matrix_x
+
+    @property
+    def matrix_y(self) -> np.ndarray:
+        """Dense (m1, n1) basis matrix along y (built on first use)."""
+        if self._matrix_y is None:
+            self._matrix_y = _dense(self.spans_y, self.basis_y, self.n1, self.degree)
+        return self._matrix_y
 
     def evaluate(self, control: np.ndarray, weights: np.ndarray | None = None,
                  mask: np.ndarray | None = None) -> np.ndarray:
@@ -462,6 +476,15 @@ class GridBasis:
         trace2 = np.maximum(np.trace(normal2, axis1=1, axis2=2) / self.n1, 1e-12)
         normal2 += (ridge * trace2)[:, None, None] * np.eye(self.n1)
         return np.linalg.solve(normal2, rhs2[..., None])[..., 0]
+
+
+def _greville(knots: np.ndarray, n_ctrl: int, degree: int) -> np.ndarray:
+    """Greville abscissae: the mean of knots a + 1 .. a + degree of each control point a
+    (summed left to right, then divided: the arithmetic of ``ndarray.mean``)."""
+    total = knots[1:1 + n_ctrl].copy()
+    for r in range(2, degree + 1):
+        total += knots[r:r + n_ctrl]
+    return total / degree
 
 
 def _dense(spans: np.ndarray, values: np.ndarray, n_ctrl: int, degree: int) -> np.ndarray:
