@@ -1,7 +1,7 @@
 """Obstacles and cost map: speed on a 120k-point frame, detection on SemanticKITTI, tracking on
 the synthetic sequence.
 
-    .venv/bin/python benchmarks/bench_obstacles.py [--repeats 30]
+    .venv/bin/python benchmarks/bench_obstacles.py [--repeats 30] [--threads N] [--speed-only]
 
 Speed: median wall time of obstacle clustering plus the cost map (ObstacleDetector +
 TraversabilityCost given the terrain surface and the Segmenter's labels) on KITTI seq. 00
@@ -59,8 +59,12 @@ def speed(positions: np.ndarray, repeats: int) -> None:
             times["clustering"].append(t1 - t0)
             times["cost map"].append(t2 - t1)
             times["total"].append(t2 - t0)
+    import numba
+
     print(f"speed: {len(positions)} points, {len(obstacles)} obstacles, cost map "
-          f"{cost_map.shape[0]} x {cost_map.shape[1]} cells of {cost_map.cell_size} m")
+          f"{cost_map.shape[0]} x {cost_map.shape[1]} cells of {cost_map.cell_size} m; numba "
+          f"threads {numba.get_num_threads()}, load average "
+          + ", ".join(f"{v:.2f}" for v in os.getloadavg()))
     for key, values in times.items():
         print(f"  {key:<11} median {1e3 * statistics.median(values):6.2f} ms   "
               f"min {1e3 * min(values):6.2f} ms   ({repeats} runs)")
@@ -117,7 +121,15 @@ def tracking() -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="numba threads for the kernels that split work over threads")
+    parser.add_argument("--speed-only", action="store_true",
+                        help="only the speed figures (no detection or tracking runs)")
     args = parser.parse_args()
+    if args.threads:
+        import numba
+
+        numba.set_num_threads(args.threads)
     root = data_root()
     if root is not None:
         positions, _ = kitti_frame(root, "000000")
@@ -126,6 +138,8 @@ def main() -> None:
 
         positions = sample_lidar(make_scene("offroad"), beams=64, azimuth_steps=1800).positions
     speed(positions, args.repeats)
+    if args.speed_only:
+        return
     if root is not None:
         kitti_detection(root)
     tracking()

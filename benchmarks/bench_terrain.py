@@ -1,10 +1,13 @@
 """Terrain-model speed: prints median timings (no assertions).
 
-1. ``segment_terrain`` on KITTI seq. 00 frame 000000 (needs ../shared/data or $O3D_TERRAIN_DATA).
+1. ``segment_terrain`` on KITTI seq. 00 frame 000000 (needs ../shared/data or $O3D_TERRAIN_DATA),
+   in total and by step: cloud to frame, grid, fit, per-point heights and labels.
 2. The paper's configuration: 34 m x 22 m, 0.5 m cells, 25 x 25 control points, degree 3,
-   300k synthetic points: grid + fit + slope grid, each stage timed.
+   300k synthetic points: grid + fit + slope grid, each step timed.
 
-Run: .venv/bin/python benchmarks/bench_terrain.py [--repeat N]
+Run: .venv/bin/python benchmarks/bench_terrain.py [--repeat N] [--threads N]
+(``--threads``: numba threads for the kernels that split work over threads; default: numba's.)
+The machine's load average is printed with the figures: on a shared machine they are noisy.
 """
 
 from __future__ import annotations
@@ -14,10 +17,13 @@ import os
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from o3d_terrain.api import segment_terrain
+from o3d_terrain.frame import as_frame
 from o3d_terrain.grid import quantize_points
+from o3d_terrain.segment import segment_points
 from o3d_terrain.terrain import fit_grid
 
 
@@ -36,16 +42,35 @@ def data_root() -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
+def load_text() -> str:
+    return "load average " + ", ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=15)
+    parser.add_argument("--threads", type=int, default=None)
     args = parser.parse_args()
+    if args.threads:
+        numba.set_num_threads(args.threads)
+    print(f"numba threads {numba.get_num_threads()}, {load_text()}")
 
     scan = data_root() / "kitti_seq00_lidar" / "velodyne" / "000000.bin"
     if scan.exists():
         points = np.fromfile(scan, np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
         ms = median_ms(lambda: segment_terrain(points), args.repeat)
         print(f"segment_terrain, KITTI 000000 ({len(points)} points): median {ms:.1f} ms")
+        grid = quantize_points(points, cell_size=0.5)
+        surface = fit_grid(grid)
+        steps = {
+            "cloud to frame": median_ms(lambda: as_frame(points), args.repeat),
+            "grid": median_ms(lambda: quantize_points(points, cell_size=0.5), args.repeat),
+            "fit": median_ms(lambda: fit_grid(grid), args.repeat),
+            "heights + labels": median_ms(lambda: segment_points(surface, points,
+                                                                 threshold=None), args.repeat),
+        }
+        print(f"  steps ({grid.nx} x {grid.ny} cells, {surface.shape[0]} x {surface.shape[1]} "
+              f"control points): " + ", ".join(f"{k} {v:.1f} ms" for k, v in steps.items()))
     else:
         print(f"KITTI frame not found at {scan}: skipped")
 
@@ -60,16 +85,16 @@ def main() -> None:
     region = (0.0, 34.0, -11.0, 11.0)
     grid = quantize_points(positions, cell_size=0.5, region=region)
     surface = fit_grid(grid, control_points=(25, 25), degree=3)
-    xc, yc = grid.x_centers, grid.y_centers
     t_grid = median_ms(lambda: quantize_points(positions, cell_size=0.5, region=region),
                        args.repeat)
+    t_slope = median_ms(lambda: surface.slope_grid(0.5), args.repeat)
     for method in ("robust", "paper"):
         t_fit = median_ms(lambda: fit_grid(grid, control_points=(25, 25), degree=3,
                                            method=method), args.repeat)
-        t_slope = median_ms(lambda: surface.slope_deg(xc[:, None], yc[None, :]), args.repeat)
         print(f"paper configuration (34 x 22 m, 0.5 m, 25 x 25, degree 3, {n} points), "
               f"method={method}: grid {t_grid:.1f} ms + fit {t_fit:.1f} ms + slope grid "
               f"{t_slope:.1f} ms = {t_grid + t_fit + t_slope:.1f} ms")
+    print(load_text())
 
 
 if __name__ == "__main__":

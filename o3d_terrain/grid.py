@@ -98,9 +98,7 @@ def region_of(positions: np.ndarray) -> tuple[float, float, float, float]:
     """The x/y bounding box of the finite points."""
     positions = np.asarray(positions, dtype=np.float64)
     x_min, x_max, y_min, y_max, n = _grid.finite_bounds(
-        np.ascontiguousarray(positions[:, 0]), np.ascontiguousarray(positions[:, 1]),
-        np.ascontiguousarray(positions[:, 2]),
-    )
+        positions[:, 0], positions[:, 1], positions[:, 2])
     if n == 0:
         raise InputError("the cloud has no finite point; give a cloud with at least one point")
     return (float(x_min), float(x_max), float(y_min), float(y_max))
@@ -120,9 +118,10 @@ def quantize_points(
         raise InputError(f"positions must be (N, 3), got {positions.shape}")
     if len(positions) == 0:
         raise InputError("the cloud is empty; give a cloud with points")
-    x = np.ascontiguousarray(positions[:, 0])
-    y = np.ascontiguousarray(positions[:, 1])
-    z = np.ascontiguousarray(positions[:, 2])
+    positions = np.ascontiguousarray(positions)
+    x = positions[:, 0]
+    y = positions[:, 1]
+    z = positions[:, 2]  # strided views: the kernels read the rows in place
     if region is None:
         x_min, x_max, y_min, y_max, n = _grid.finite_bounds(x, y, z)
         if n == 0:
@@ -137,7 +136,7 @@ def quantize_points(
             f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
-    cells = _grid.cell_indices(x, y, x_min, y_min, cell_size, nx, ny)
+    cells = _grid.cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny)
     height, count, state, lowest, nonfinite, outside = _grid.quantize(
         cells, z, nx, ny, min_points, fill_empty
     )

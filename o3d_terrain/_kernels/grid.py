@@ -40,6 +40,30 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
 
 
 @numba.njit(cache=True)
+def cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny):
+    """:func:`cell_indices` of the rows (x, y, z) of an (N, 3) array, read in place."""
+    n = positions.shape[0]
+    out = np.empty(n, np.int64)
+    for k in range(n):
+        fx = (positions[k, 0] - x_min) / cell_size
+        fy = (positions[k, 1] - y_min) / cell_size
+        if not (math.isfinite(fx) and math.isfinite(fy)):
+            out[k] = -2
+            continue
+        ix = int(math.floor(fx))
+        iy = int(math.floor(fy))
+        if ix == nx and fx <= nx:
+            ix = nx - 1
+        if iy == ny and fy <= ny:
+            iy = ny - 1
+        if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
+            out[k] = -1
+        else:
+            out[k] = ix * ny + iy
+    return out
+
+
+@numba.njit(cache=True)
 def quantize(cells, z, nx, ny, min_points, fill_empty):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts and state.
 
