@@ -61,6 +61,23 @@ def test_unit_weights_equal_scipy_ndbspline():
     np.testing.assert_allclose(gy, ref(np.stack([x, y], 1), nu=(0, 1)), atol=1e-9)
 
 
+def test_many_control_points_equal_scipy_ndbspline():
+    """Cubic surfaces with uniform interior spans (evaluated in closed form) and the clamped
+    end spans, through __call__ and heights_above."""
+    rng = np.random.default_rng(11)
+    for degree, (n0, n1) in ((3, (20, 14)), (3, (32, 9)), (2, (15, 12))):
+        s = TerrainSurface(degree, clamped_uniform_knots(n0, degree, -3.0, 41.0),
+                           clamped_uniform_knots(n1, degree, 2.0, 17.5),
+                           rng.normal(size=(n0, n1)), np.ones((n0, n1)))
+        ref = NdBSpline((s.knots_x, s.knots_y), s.control_points, s.degree)
+        x = np.r_[rng.uniform(-3, 41, 3000), -3.0, 41.0, s.knots_x]  # knots: span edges
+        y = np.r_[rng.uniform(2, 17.5, 3000), 17.5, 2.0, rng.uniform(2, 17.5, s.knots_x.size)]
+        expected = ref(np.stack([x, y], 1))
+        np.testing.assert_allclose(s(x, y), expected, atol=1e-9)
+        z = rng.normal(size=x.size)
+        np.testing.assert_allclose(s.heights_above(np.c_[x, y, z]), z - expected, atol=1e-9)
+
+
 def test_rational_surface_equals_naive_double_sum():
     rng = np.random.default_rng(1)
     s = random_surface(rng, n0=5, n1=6, degree=2)
