@@ -425,25 +425,21 @@ class GridBasis:
         S is linear in Q through the rational basis R_ab N_a N_b / D, so the fit is consistent
         with rational evaluation.
         """
-        w = np.where(sample_weights > 0, sample_weights, 0.0)
-        zz = np.where(w > 0, z, 0.0)
-        if rational_weights is None:
-            mw, rv = w, w * zz
-        else:
-            d = self.denominator(rational_weights, w > 0)
-            d = np.where(w > 0, d, 1.0)
-            mw, rv = w / (d * d), w * zz / d
-        band, rhs = _bs.tensor_normal_band(self.spans_x, self.basis_x, self.spans_y,
-                                           self.basis_y, np.ascontiguousarray(mw),
-                                           np.ascontiguousarray(rv), self.n0, self.n1,
-                                           self.degree, self.bandwidth)
+        args = (self.spans_x, self.basis_x, self.spans_y, self.basis_y)
+        r_in = np.zeros((0, 0)) if rational_weights is None else \
+            np.ascontiguousarray(rational_weights, dtype=np.float64)
+        mw, rv, weight_sum = _bs.fit_cell_weights(
+            *args, np.ascontiguousarray(z, dtype=np.float64),
+            np.ascontiguousarray(sample_weights, dtype=np.float64), r_in)
+        band, rhs = _bs.tensor_normal_band(*args, mw, rv, self.n0, self.n1, self.degree,
+                                           self.bandwidth)
         if rational_weights is not None:
             r = np.ascontiguousarray(rational_weights, dtype=np.float64).ravel()
             _bs.scale_band(band, r)
             rhs *= r
         scale = max(float(band[0].mean()), 1e-12)
         if smoothing > 0:
-            data_per_ctrl = w.sum() / (self.n0 * self.n1)
+            data_per_ctrl = weight_sum / (self.n0 * self.n1)
             _tk.add_thin_plate_band(band, self.n0, self.n1, smoothing * max(data_per_ctrl, 1e-12),
                                     *self.penalty_weights, self.greville_x, self.greville_y)
         band[0] += ridge * scale

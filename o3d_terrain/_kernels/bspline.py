@@ -744,3 +744,50 @@ def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, ma
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
             out[i, j] = acc_n / acc_d if rational else acc_n
     return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def fit_cell_weights(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights):
+    """Per-cell matrix weights and right-hand-side values of the (rational) least-squares fit.
+
+    w = sample weight where > 0, else 0 (NaN too); v = w z where w > 0. With control-point
+    weights R (``rational_weights`` of size > 0) the rational basis divides by the
+    denominator D = Bx R By^T at the cell: returns (w / D^2, w z / D); else (w, w z). Also
+    returns the sum of w (taken in cell order). D is computed with the operations of
+    :func:`grid_rational`.
+    """
+    p = basis_x.shape[1] - 1
+    m0 = spans_x.shape[0]
+    m1 = spans_y.shape[0]
+    rational = rational_weights.shape[0] > 0
+    matrix_w = np.zeros((m0, m1))
+    rhs_v = np.zeros((m0, m1))
+    total = 0.0
+    col_d = np.zeros((m1, rational_weights.shape[0]))
+    if rational:
+        n0 = rational_weights.shape[0]
+        for j in range(m1):
+            sy = spans_y[j] - p
+            for a in range(n0):
+                acc = 0.0
+                for b in range(p + 1):
+                    acc += basis_y[j, b] * rational_weights[a, sy + b]
+                col_d[j, a] = acc
+    for i in range(m0):
+        sx = spans_x[i] - p
+        for j in range(m1):
+            w = sample_weights[i, j]
+            if not w > 0.0:
+                continue
+            total += w
+            wz = w * z[i, j]
+            if rational:
+                acc = 0.0
+                for a in range(p + 1):
+                    acc += basis_x[i, a] * col_d[j, sx + a]
+                matrix_w[i, j] = w / (acc * acc)
+                rhs_v[i, j] = wz / acc
+            else:
+                matrix_w[i, j] = w
+                rhs_v[i, j] = wz
+    return matrix_w, rhs_v, total
