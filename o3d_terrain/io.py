@@ -222,6 +222,7 @@ def render_grid_image(
     if not high > low:
         high = low + 1.0
     scaled = np.clip((values - low) / (high - low), 0, 1)
+    scaled[~valid] = 0.0  # drawn grey below; keeps NaN out of the integer cast
     # [ix, iy] -> image rows from top (high y) to bottom, columns left (low x) to right
     scaled = np.flipud(scaled.T)
     mask = np.flipud(valid.T)
