@@ -57,13 +57,14 @@ def _build(make, **options):
 
 
 def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
-                   smoothing) -> Frame:
+                   smoothing, terrain_prior=False) -> Frame:
     """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
     terrain = _build(RationalBSplineTerrain,
                      control_points=None if control_points is None else tuple(control_points),
-                     degree=degree, method=method, smoothing=smoothing)
+                     degree=degree, method=method, smoothing=smoothing,
+                     terrain_prior=terrain_prior)
     frame = as_frame(cloud)
     positions = frame.positions
     if len(positions) == 0:
@@ -86,18 +87,22 @@ def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: fl
 
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
                 control_points: Sequence[int] | None = None, degree: int = 3,
-                method: str = "robust", smoothing: float = 0.05) -> TerrainSurface:
+                method: str = "robust", smoothing: float = 0.05,
+                terrain_prior: bool = False) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
     cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
     (at least 1 m), at most 32 per axis. degree: B-spline degree. method: "robust" or "paper".
     smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
+    terrain_prior: keep cells connected to the ground under a 45° slope limit as terrain
+    (steep berms and ditch walls; see docs/algorithm.md for what it costs on urban scans).
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
-    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing)
+    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
+                           terrain_prior)
     return frame.product("surface")
 
 
@@ -106,7 +111,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     degree: int = 3, distance_threshold: float | None = None,
                     below_threshold: float = 0.5, range_coefficient: float = 0.0,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
-                    smoothing: float = 0.05) -> tuple[TerrainSurface, np.ndarray]:
+                    smoothing: float = 0.05,
+                    terrain_prior: bool = False) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -123,7 +129,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin)
-    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing)
+    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
+                           terrain_prior)
     frame = segmenter(frame)
     labels = frame.attribute(LABELS)
     return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)

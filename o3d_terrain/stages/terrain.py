@@ -47,6 +47,18 @@ class RationalBSplineTerrain(Stage):
     noise_floor: float = option(0.03, unit="m", rule=NON_NEGATIVE,
                                 help="smallest noise threshold of the robust weights")
     rational: bool = option(True, help="derive control-point weights R from the sample weights")
+    terrain_prior: bool = option(
+        False,
+        help="robust method: keep cells connected to the ground under the slope limit as "
+             "terrain (steep berms, ditch walls); see docs/algorithm.md for the trade-off",
+    )
+    max_slope_deg: float = option(45.0, unit="deg", rule=Range(1, 89),
+                                  help="terrain_prior: steepest terrain the prior accepts")
+    gap_slope_deg: float = option(20.0, unit="deg", rule=Range(0, 89),
+                                  help="terrain_prior: slope of the cone that crosses empty cells")
+    max_obstacle_width: float = option(40.0, unit="m", rule=POSITIVE,
+                                       help="terrain_prior: widest obstacle, sets the seed "
+                                            "search window")
 
     def check_options(self) -> list[str]:
         if self.control_points is not None and min(self.control_points) < self.degree + 1:
@@ -58,7 +70,9 @@ class RationalBSplineTerrain(Stage):
         fit = fit_grid_detailed(
             frame.product("grid"), control_points=self.control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
-            rational=self.rational,
+            rational=self.rational, terrain_prior=self.terrain_prior,
+            max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
+            max_obstacle_width=self.max_obstacle_width,
         )
         grid = frame.product("grid")
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
