@@ -27,7 +27,11 @@ SLOPES_DEG = "slopes_deg"
 
 
 def _tensor(array: np.ndarray) -> o3d.core.Tensor:
-    return o3d.core.Tensor(np.ascontiguousarray(array))
+    """An Open3D tensor holding its own copy of ``array`` (one copy, never shared)."""
+    array = np.asarray(array)
+    if array.flags.c_contiguous:
+        return o3d.core.Tensor(array)  # copies
+    return o3d.core.Tensor.from_numpy(np.ascontiguousarray(array))  # shares our fresh copy
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -171,7 +175,7 @@ def as_frame(data: Any) -> Frame:
         attributes = {}
         if array.shape[1] == 4:
             attributes["intensities"] = array[:, 3].astype(np.float32)
-        return Frame(cloud_from_numpy(array[:, :3].astype(np.float64), **attributes))
+        return Frame(cloud_from_numpy(np.asarray(array[:, :3], dtype=np.float64), **attributes))
     raise InputError(
         "expected an Open3D PointCloud (legacy or tensor), an (N, 3)/(N, 4) numpy array or a "
         f"Frame, got {type(data).__name__}"

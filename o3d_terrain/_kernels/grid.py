@@ -12,54 +12,42 @@ MEASURED = 1
 FILLED = 2
 
 
-@numba.njit(cache=True)
-def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
-    """Flat cell index (ix * ny + iy) of every point; -1 outside the grid, -2 non-finite x or y.
+@numba.njit(cache=True, inline="always")
+def _cell(x, y, x_min, y_min, cell_size, nx, ny):
+    """Flat cell index (ix * ny + iy) of one point; -1 outside the grid, -2 non-finite x or y.
 
     A point on the far edge of the grid (x == x_min + nx * cell_size) goes to the last cell.
     """
-    n = x.shape[0]
-    out = np.empty(n, np.int64)
-    for k in range(n):
-        fx = (x[k] - x_min) / cell_size
-        fy = (y[k] - y_min) / cell_size
-        if not (math.isfinite(fx) and math.isfinite(fy)):
-            out[k] = -2
-            continue
-        ix = int(math.floor(fx))
-        iy = int(math.floor(fy))
-        if ix == nx and fx <= nx:
-            ix = nx - 1
-        if iy == ny and fy <= ny:
-            iy = ny - 1
-        if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
-            out[k] = -1
-        else:
-            out[k] = ix * ny + iy
+    fx = (x - x_min) / cell_size
+    fy = (y - y_min) / cell_size
+    if not (math.isfinite(fx) and math.isfinite(fy)):
+        return -2
+    ix = int(math.floor(fx))
+    iy = int(math.floor(fy))
+    if ix == nx and fx <= nx:
+        ix = nx - 1
+    if iy == ny and fy <= ny:
+        iy = ny - 1
+    if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
+        return -1
+    return ix * ny + iy
+
+
+@numba.njit(cache=True)
+def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
+    """:func:`_cell` of every point given as separate x and y arrays."""
+    out = np.empty(x.shape[0], np.int64)
+    for k in range(x.shape[0]):
+        out[k] = _cell(x[k], y[k], x_min, y_min, cell_size, nx, ny)
     return out
 
 
 @numba.njit(cache=True)
 def cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny):
-    """:func:`cell_indices` of the rows (x, y, z) of an (N, 3) array, read in place."""
-    n = positions.shape[0]
-    out = np.empty(n, np.int64)
-    for k in range(n):
-        fx = (positions[k, 0] - x_min) / cell_size
-        fy = (positions[k, 1] - y_min) / cell_size
-        if not (math.isfinite(fx) and math.isfinite(fy)):
-            out[k] = -2
-            continue
-        ix = int(math.floor(fx))
-        iy = int(math.floor(fy))
-        if ix == nx and fx <= nx:
-            ix = nx - 1
-        if iy == ny and fy <= ny:
-            iy = ny - 1
-        if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
-            out[k] = -1
-        else:
-            out[k] = ix * ny + iy
+    """:func:`_cell` of the rows (x, y, z) of an (N, 3) array, read in place."""
+    out = np.empty(positions.shape[0], np.int64)
+    for k in range(positions.shape[0]):
+        out[k] = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
     return out
 
 
