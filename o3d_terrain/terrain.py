@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import InputError
 from ._kernels import ground as _ground
+from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
 from .spline import GridBasis, TerrainSurface
 
@@ -294,77 +295,58 @@ def _layouts(n_max, degree):
             for a, b in out]
 
 
-def _robust_scale(r: np.ndarray, floor: float) -> float:
-    """Noise scale from the residuals at or below the surface (the terrain side), which
-    obstacles do not contaminate: 1.4826 * median |r| over r <= 0."""
-    below = r[r <= 0]
-    if below.size < 3:
-        below = r
-    return max(1.4826 * float(np.median(np.abs(below))), floor)
-
-
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
                 noise_floor, max_iterations, prior=None):
     above_k = 2.5  # threshold above the surface, in noise scales
     below_k = 6.0  # threshold below the surface (low outliers), in noise scales
-    alpha = 4.0
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
     layouts = _layouts(n_max, degree)
     valid = base > 0
-    if prior is not None:
-        compact, prior_spread = prior
+    use_prior = prior is not None
+    compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), 0.0)
     p = z.copy()
     w = base.copy()
-    r_samples = None
+    ratios = None  # W / base of the last pass (0 on invalid cells), remapped onto each layout
     records = []
     equalized = np.zeros(z.shape, bool)
     iteration = 0
     noise = noise_floor
     for level, n in enumerate(layouts):
         basis = GridBasis(xl, yl, n, degree, region_local)
+        coverage = basis.project(valid.astype(np.float64))  # remap denominator, per layout
         final = level == len(layouts) - 1
         passes = 4 if final else 2
-        previous_w = None
-        for _ in range(passes):
+        previous_w = w
+        for k in range(passes):
             iteration += 1
-            r = np.ones(n) if (r_samples is None or not rational) else \
-                0.5 + 0.5 * remap_weights(r_samples, valid, basis)
+            r = np.ones(n) if (ratios is None or not rational) else \
+                _control_weights(ratios, coverage, basis)
             q = basis.solve_tensor(p, w, r, smoothing)
             s = basis.evaluate(q, r, valid)
-            res = z - s  # residuals of the original samples, not the equalized ones
-            noise = _robust_scale(res[measured], noise_floor)
+            # residuals of the original samples (not the equalized ones): noise scale on the
+            # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
+            noise, mean_error = _tk.residual_scale(z, s, measured, noise_floor)
             th_above = above_k * noise
-            th_below = below_k * noise
-            # bounded eq. 3: w = (W - 1) / W with W = 1 + (|dz| / th)^-alpha
-            t = np.where(res > 0, res / th_above, -res / th_below)
-            wn = base / (1.0 + t ** alpha)
-            if prior is not None:
-                if final:  # robust again, with the spread of the steepest slope in a cell
-                    tc = res / (th_above + prior_spread)
-                    wn = np.where(compact & (res > 0), base / (1.0 + tc ** alpha), wn)
-                else:  # coarse layouts cannot follow narrow steep terrain: keep it whole
-                    wn = np.where(compact & (res > 0), base, wn)
-            w = wn
-            r_samples = np.where(valid, wn / np.maximum(base, 1e-12), 0.0)
-            # equalization: clip samples far above onto a band over the surface (never raise)
-            limit = s + clip_k * th_above
-            move = valid & (z > limit)
-            if prior is not None:
-                move &= ~compact
-            newp = np.where(move, limit, z)
-            moved = int((np.abs(newp - p) > 1e-4).sum())
-            p = newp
-            equalized = move
-            records.append(IterationRecord(n, float(np.abs(res[measured]).mean()), th_above,
-                                           moved))
-            if previous_w is not None and np.abs(wn - previous_w).max() < 0.02:
+            w, ratios, p_next, equalized, moved, change = _tk.robust_pass(
+                z, s, base, valid, compact, use_prior, final, prior_spread, th_above,
+                below_k * noise, clip_k, p, previous_w, k > 0)
+            p = p_next
+            records.append(IterationRecord(n, mean_error, th_above, moved))
+            if k > 0 and change < 0.02:
                 break
-            previous_w = wn
+            previous_w = w
             if iteration >= max_iterations and final:
                 break
     basis_final = basis
-    rr = np.ones(n) if not rational else 0.5 + 0.5 * remap_weights(r_samples, valid, basis)
+    rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis)
     q = basis_final.solve_tensor(p, w, rr, smoothing)
     s = basis_final.evaluate(q, rr, valid)
     outliers = valid & (z - s > above_k * noise)
     return q, rr, basis_final, w, p, equalized, outliers, records, noise
+
+
+def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis) -> np.ndarray:
+    """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (zero on invalid cells), with
+    the projection of the valid mask (``coverage``) computed once per layout."""
+    num = basis.project(ratios)
+    return 0.5 + 0.5 * np.where(coverage > 1e-9, num / np.maximum(coverage, 1e-12), 1.0)

@@ -234,3 +234,106 @@ def grid_project(spans_x, basis_x, spans_y, basis_y, values, n0, n1):
                 for b in range(p + 1):
                     out[sx + a, sy + b] += va * basis_y[j, b]
     return out
+
+
+# -------------------------------------------------------------------------------------------
+# one pass of the robust re-weighting (terrain.py, method "robust"), cell by cell
+
+
+@numba.njit(cache=True)
+def residual_scale(z, surface, measured, floor):
+    """Noise scale and mean |residual| of the measured cells, residual r = z - surface.
+
+    Scale: 1.4826 * median |r| over the residuals r <= 0 (over all measured residuals when
+    fewer than 3 are <= 0), at least ``floor``. The median is exact (selection over the
+    gathered values), the same value as ``numpy.median``. Returns (scale, mean |r|).
+    """
+    m0, m1 = z.shape
+    gathered = np.empty(m0 * m1)
+    count = 0
+    total = 0.0
+    n_measured = 0
+    for i in range(m0):
+        for j in range(m1):
+            if not measured[i, j]:
+                continue
+            r = z[i, j] - surface[i, j]
+            a = abs(r)
+            total += a
+            n_measured += 1
+            if r <= 0.0:
+                gathered[count] = a
+                count += 1
+    if count < 3:
+        count = 0
+        for i in range(m0):
+            for j in range(m1):
+                if measured[i, j]:
+                    gathered[count] = abs(z[i, j] - surface[i, j])
+                    count += 1
+    scale = 1.4826 * np.median(gathered[:count])
+    if not scale >= floor:
+        scale = floor
+    return scale, total / max(n_measured, 1)
+
+
+@numba.njit(cache=True)
+def robust_pass(z, surface, base, valid, compact, use_prior, final, prior_spread, th_above,
+                th_below, clip_k, previous_samples, previous_weights, has_previous):
+    """Sample weights, control-point weight ratios and equalized samples of one pass.
+
+    Per cell, r = z - surface: t = r / th_above above the surface, -r / th_below below;
+    weight w = base / (1 + t^4) (the bounded form of Broggi et al. eq. 3 with alpha = 4).
+    With ``use_prior``, compact cells above the surface keep w = base on coarse layouts and on
+    the ``final`` one get t = r / (th_above + prior_spread). Ratio = w / base on valid cells
+    (0 elsewhere). Equalization: valid cells (not compact ones with the prior) with
+    z > surface + clip_k * th_above are clipped onto that limit; the others keep z.
+
+    Returns (weights, ratios, samples, equalized, moved, change): moved = cells whose sample
+    changed by more than 1e-4 from ``previous_samples``; change = max |w - previous_weights|
+    (0 when not ``has_previous``).
+    """
+    m0, m1 = z.shape
+    weights = np.empty((m0, m1))
+    ratios = np.empty((m0, m1))
+    samples = np.empty((m0, m1))
+    equalized = np.empty((m0, m1), np.bool_)
+    band = clip_k * th_above
+    prior_threshold = th_above + prior_spread
+    moved = 0
+    change = 0.0
+    for i in range(m0):
+        for j in range(m1):
+            zc = z[i, j]
+            s = surface[i, j]
+            r = zc - s
+            b = base[i, j]
+            if r > 0.0:
+                t = r / th_above
+            else:
+                t = -r / th_below
+            t2 = t * t
+            w = b / (1.0 + t2 * t2)
+            keep = use_prior and compact[i, j]
+            if keep and r > 0.0:
+                if final:
+                    tc = r / prior_threshold
+                    tc2 = tc * tc
+                    w = b / (1.0 + tc2 * tc2)
+                else:
+                    w = b
+            weights[i, j] = w
+            v = valid[i, j]
+            ratios[i, j] = w / max(b, 1e-12) if v else 0.0
+            limit = s + band
+            move = v and zc > limit and not keep
+            equalized[i, j] = move
+            value = limit if move else zc
+            samples[i, j] = value
+            if abs(value - previous_samples[i, j]) > 1e-4:
+                moved += 1
+            if has_previous:
+                d = abs(w - previous_weights[i, j])
+                if d > change:
+                    change = d
+    return weights, ratios, samples, equalized, moved, change
