@@ -302,6 +302,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
     layouts = _layouts(n_max, degree)
     valid = base > 0
+    valid_cells = np.flatnonzero(valid)
+    measured_cells = np.flatnonzero(measured)
     use_prior = prior is not None
     compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), 0.0)
     p = z.copy()
@@ -313,7 +315,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     noise = noise_floor
     for level, n in enumerate(layouts):
         basis = GridBasis(xl, yl, n, degree, region_local)
-        coverage = basis.project(valid.astype(np.float64))  # remap denominator, per layout
+        coverage = _project(basis, valid.astype(np.float64))  # remap denominator, per layout
         final = level == len(layouts) - 1
         passes = 4 if final else 2
         previous_w = w
@@ -325,10 +327,10 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             s = basis.evaluate(q, r, valid)
             # residuals of the original samples (not the equalized ones): noise scale on the
             # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
-            noise, mean_error = _tk.residual_scale(z, s, measured, noise_floor)
+            noise, mean_error = _tk.residual_scale(z, s, measured_cells, noise_floor)
             th_above = above_k * noise
             w, ratios, p_next, equalized, moved, change = _tk.robust_pass(
-                z, s, base, valid, compact, use_prior, final, prior_spread, th_above,
+                z, s, base, valid_cells, compact, use_prior, final, prior_spread, th_above,
                 below_k * noise, clip_k, p, previous_w, k > 0)
             p = p_next
             records.append(IterationRecord(n, mean_error, th_above, moved))
@@ -348,5 +350,11 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
 def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis) -> np.ndarray:
     """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (zero on invalid cells), with
     the projection of the valid mask (``coverage``) computed once per layout."""
-    num = basis.project(ratios)
+    num = _project(basis, ratios)
     return 0.5 + 0.5 * np.where(coverage > 1e-9, num / np.maximum(coverage, 1e-12), 1.0)
+
+
+def _project(basis: GridBasis, values: np.ndarray) -> np.ndarray:
+    """Bx^T V By (:meth:`GridBasis.project`) contracted row by row."""
+    return _tk.grid_project_rows(basis.spans_x, basis.basis_x, basis.spans_y, basis.basis_y,
+                                 values, basis.n0, basis.n1)
