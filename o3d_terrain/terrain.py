@@ -303,36 +303,46 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     layouts = _layouts(n_max, degree)
     valid = base > 0
     valid_cells = np.flatnonzero(valid)
+    valid_values = valid.astype(np.float64)
     measured_cells = np.flatnonzero(measured)
     use_prior = prior is not None
     compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), 0.0)
     p = z.copy()
     w = base.copy()
-    ratios = None  # W / base of the last pass (0 on invalid cells), remapped onto each layout
+    # two buffers per product, alternating between passes (the previous pass stays readable);
+    # cells outside valid_cells keep weight 0, ratio 0, sample z and False
+    weight_buffers = (np.zeros(z.shape), np.zeros(z.shape))
+    sample_buffers = (z.copy(), z.copy())
+    ratios = np.zeros(z.shape)  # W / base of the last pass, remapped onto each layout
+    have_ratios = False
     records = []
     equalized = np.zeros(z.shape, bool)
     iteration = 0
     noise = noise_floor
     for level, n in enumerate(layouts):
         basis = GridBasis(xl, yl, n, degree, region_local)
-        coverage = _project(basis, valid.astype(np.float64))  # remap denominator, per layout
+        coverage = _project(basis, valid_values, valid_cells)  # remap denominator, per layout
         final = level == len(layouts) - 1
         passes = 4 if final else 2
         previous_w = w
         for k in range(passes):
             iteration += 1
-            r = np.ones(n) if (ratios is None or not rational) else \
-                _control_weights(ratios, coverage, basis)
+            r = _control_weights(ratios, coverage, basis, valid_cells) \
+                if (have_ratios and rational) else np.ones(n)
             q = basis.solve_tensor(p, w, r, smoothing)
             s = basis.evaluate(q, r, valid)
             # residuals of the original samples (not the equalized ones): noise scale on the
             # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
             noise, mean_error = _tk.residual_scale(z, s, measured_cells, noise_floor)
             th_above = above_k * noise
-            w, ratios, p_next, equalized, moved, change = _tk.robust_pass(
+            w_next = weight_buffers[iteration % 2]
+            p_next = sample_buffers[iteration % 2]
+            moved, change = _tk.robust_pass(
                 z, s, base, valid_cells, compact, use_prior, final, prior_spread, th_above,
-                below_k * noise, clip_k, p, previous_w, k > 0)
-            p = p_next
+                below_k * noise, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
+                equalized)
+            have_ratios = True
+            w, p = w_next, p_next
             records.append(IterationRecord(n, mean_error, th_above, moved))
             if k > 0 and change < 0.02:
                 break
@@ -340,21 +350,24 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             if iteration >= max_iterations and final:
                 break
     basis_final = basis
-    rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis)
+    rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
+                                                              valid_cells)
     q = basis_final.solve_tensor(p, w, rr, smoothing)
     s = basis_final.evaluate(q, rr, valid)
     outliers = valid & (z - s > above_k * noise)
     return q, rr, basis_final, w, p, equalized, outliers, records, noise
 
 
-def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis) -> np.ndarray:
-    """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (zero on invalid cells), with
-    the projection of the valid mask (``coverage``) computed once per layout."""
-    num = _project(basis, ratios)
+def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis,
+                     cells: np.ndarray) -> np.ndarray:
+    """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (zero outside ``cells``),
+    with the projection of the valid mask (``coverage``) computed once per layout."""
+    num = _project(basis, ratios, cells)
     return 0.5 + 0.5 * np.where(coverage > 1e-9, num / np.maximum(coverage, 1e-12), 1.0)
 
 
-def _project(basis: GridBasis, values: np.ndarray) -> np.ndarray:
-    """Bx^T V By (:meth:`GridBasis.project`) contracted row by row."""
-    return _tk.grid_project_rows(basis.spans_x, basis.basis_x, basis.spans_y, basis.basis_y,
-                                 values, basis.n0, basis.n1)
+def _project(basis: GridBasis, values: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Bx^T V By (:meth:`GridBasis.project`) over the cells ``cells`` (flat indices), row by
+    row."""
+    return _tk.grid_project_cells(basis.spans_x, basis.basis_x, basis.spans_y, basis.basis_y,
+                                  values, cells, basis.n0, basis.n1)

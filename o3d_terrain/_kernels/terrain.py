@@ -241,21 +241,30 @@ def grid_project(spans_x, basis_x, spans_y, basis_y, values, n0, n1):
 
 
 @numba.njit(cache=True)
-def grid_project_rows(spans_x, basis_x, spans_y, basis_y, values, n0, n1):
-    """(Bx^T V By)[a, b] like :func:`grid_project`, contracted along y once per grid row
-    (r_i = sum_j V[i, j] By[j, :], then out[a, :] += Bx[i, a] r_i): O(m0 m1 p + m0 n1 p)
-    instead of O(m0 m1 p^2). Same values up to rounding (another summation order)."""
+def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1):
+    """(Bx^T V By)[a, b] like :func:`grid_project` over the cells ``cells`` only (flat
+    indices into the C-ordered (m0, m1) ``values``, increasing; V = 0 elsewhere), contracted
+    along y once per grid row (r_i = sum_j V[i, j] By[j, :], then out[a, :] += Bx[i, a] r_i):
+    O(cells p + rows n1 p) instead of O(m0 m1 p^2). Same values up to rounding (another
+    summation order)."""
     p = basis_x.shape[1] - 1
+    m1 = spans_y.shape[0]
+    vf = values.ravel()
     out = np.zeros((n0, n1))
     row = np.zeros(n1)
-    m1 = spans_y.shape[0]
-    for i in range(spans_x.shape[0]):
+    count = cells.shape[0]
+    k = 0
+    while k < count:
+        i = cells[k] // m1
         lo = n1
         hi = -1
-        for j in range(m1):
-            v = values[i, j]
+        while k < count and cells[k] // m1 == i:
+            c = cells[k]
+            k += 1
+            v = vf[c]
             if v == 0.0:
                 continue
+            j = c - i * m1
             sy = spans_y[j] - p
             if sy < lo:
                 lo = sy
@@ -311,27 +320,23 @@ def residual_scale(z, surface, measured_cells, floor):
 
 @numba.njit(cache=True)
 def robust_pass(z, surface, base, valid_cells, compact, use_prior, final, prior_spread,
-                th_above, th_below, clip_k, previous_samples, previous_weights, has_previous):
-    """Sample weights, control-point weight ratios and equalized samples of one pass.
+                th_above, th_below, clip_k, previous_samples, previous_weights, has_previous,
+                weights, ratios, samples, equalized):
+    """Sample weights, control-point weight ratios and equalized samples of one pass, written
+    into ``weights``, ``ratios``, ``samples`` and ``equalized`` at the cells ``valid_cells``
+    (flat indices, C order, of the cells with base > 0; the caller keeps weight 0, ratio 0,
+    sample z and False on every other cell). All arrays are C-contiguous (m0, m1).
 
-    ``valid_cells``: flat indices (C order) of the cells with base > 0; on every other cell
-    the weight and ratio are 0 and the sample is z. On a valid cell, r = z - surface:
-    t = r / th_above above the surface, -r / th_below below; weight w = base / (1 + t^4) (the
-    bounded form of Broggi et al. eq. 3 with alpha = 4). With ``use_prior``, compact cells
-    above the surface keep w = base on coarse layouts and on the ``final`` one get
-    t = r / (th_above + prior_spread). Ratio = w / base. Equalization: cells (not compact ones
-    with the prior) with z > surface + clip_k * th_above are clipped onto that limit; the
-    others keep z.
+    On a valid cell, r = z - surface: t = r / th_above above the surface, -r / th_below
+    below; weight w = base / (1 + t^4) (the bounded form of Broggi et al. eq. 3 with
+    alpha = 4). With ``use_prior``, compact cells above the surface keep w = base on coarse
+    layouts and on the ``final`` one get t = r / (th_above + prior_spread). Ratio = w / base.
+    Equalization: cells (not compact ones with the prior) with z > surface + clip_k * th_above
+    are clipped onto that limit; the others keep z.
 
-    Returns (weights, ratios, samples, equalized, moved, change): moved = cells whose sample
-    changed by more than 1e-4 from ``previous_samples``; change = max |w - previous_weights|
-    (0 when not ``has_previous``).
+    Returns (moved, change): moved = cells whose sample changed by more than 1e-4 from
+    ``previous_samples``; change = max |w - previous_weights| (0 when not ``has_previous``).
     """
-    m0, m1 = z.shape
-    weights = np.zeros((m0, m1))
-    ratios = np.zeros((m0, m1))
-    samples = z.copy()
-    equalized = np.zeros((m0, m1), np.bool_)
     zf = z.ravel()
     sf = surface.ravel()
     bf = base.ravel()
@@ -367,17 +372,19 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, final, prior_
             else:
                 w = b
         wf[c] = w
-        rf[c] = w / max(b, 1e-12)
+        rf[c] = w if b == 1.0 else w / max(b, 1e-12)
         limit = s + band
+        value = zc
         if zc > limit and not keep:
+            value = limit
             ef[c] = True
-            pf[c] = limit
-            if abs(limit - ppf[c]) > 1e-4:
-                moved += 1
-        elif abs(zc - ppf[c]) > 1e-4:
+        else:
+            ef[c] = False
+        pf[c] = value
+        if abs(value - ppf[c]) > 1e-4:
             moved += 1
         if has_previous:
             d = abs(w - pwf[c])
             if d > change:
                 change = d
-    return weights, ratios, samples, equalized, moved, change
+    return moved, change
