@@ -255,16 +255,18 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
     count = cells.shape[0]
     k = 0
     while k < count:
-        i = cells[k] // m1
+        i = cells[k] // m1  # one integer division per grid row
+        first = i * m1
+        end = first + m1
         lo = n1
         hi = -1
-        while k < count and cells[k] // m1 == i:
+        while k < count and cells[k] < end:
             c = cells[k]
             k += 1
             v = vf[c]
             if v == 0.0:
                 continue
-            j = c - i * m1
+            j = c - first
             sy = spans_y[j] - p
             if sy < lo:
                 lo = sy
