@@ -30,6 +30,37 @@ def clamped_uniform_knots(n_ctrl, degree, low, high):
     return knots
 
 
+@numba.njit(cache=True, inline="always")
+def _uniform_span(n_ctrl, degree, t, knots, inv_width):
+    """Knot span of t on a clamped uniform knot vector (t inside the knot range).
+
+    The span follows from one multiplication; a comparison on each side corrects the rounding
+    of t near a knot, so the result equals :func:`find_span`.
+    """
+    n = n_ctrl - 1
+    low = knots[degree]
+    if t >= knots[n + 1]:
+        return n
+    if t <= low:
+        return degree
+    s = degree + int((t - low) * inv_width)
+    if s > n:
+        s = n
+    if s < degree:
+        s = degree
+    while s > degree and t < knots[s]:
+        s -= 1
+    while s < n and t >= knots[s + 1]:
+        s += 1
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def _inverse_span_width(n_ctrl, degree, knots):
+    """1 / width of the interior knot spans of a clamped uniform knot vector."""
+    return (n_ctrl - degree) / (knots[n_ctrl] - knots[degree])
+
+
 @numba.njit(cache=True)
 def find_span(n_ctrl, degree, t, knots):
     """Knot span index of parameter t (Piegl & Tiller A2.1 FindSpan).
@@ -43,14 +74,7 @@ def find_span(n_ctrl, degree, t, knots):
     if t <= knots[degree]:
         return degree
     # uniform interior knots: guess the span directly, then correct by comparisons
-    width = (knots[n + 1] - knots[degree]) / (n + 1 - degree)
-    guess = degree + int((t - knots[degree]) / width)
-    if guess > n:
-        guess = n
-    while guess > degree and t < knots[guess]:
-        guess -= 1
-    while guess < n and t >= knots[guess + 1]:
-        guess += 1
+    guess = _uniform_span(n_ctrl, degree, t, knots, _inverse_span_width(n_ctrl, degree, knots))
     if knots[guess] <= t < knots[guess + 1]:
         return guess
     low = degree
@@ -65,24 +89,35 @@ def find_span(n_ctrl, degree, t, knots):
     return mid
 
 
+@numba.njit(cache=True, inline="always")
+def _basis_step(j, span, t, knots, out, left, right):
+    """Step j of Piegl & Tiller A2.2 BasisFuns, in place: ``out[:j]``, the basis functions of
+    degree j - 1 at t, become the j + 1 functions of degree j."""
+    left[j] = t - knots[span + 1 - j]
+    right[j] = knots[span + j] - t
+    saved = 0.0
+    for r in range(j):
+        temp = out[r] / (right[r + 1] + left[j - r])
+        out[r] = saved + right[r + 1] * temp
+        saved = left[j - r] * temp
+    out[j] = saved
+
+
+@numba.njit(cache=True, inline="always")
+def basis_funs_scratch(span, t, degree, knots, out, left, right):
+    """Piegl & Tiller A2.2 BasisFuns with caller-provided scratch ``left``/``right``."""
+    out[0] = 1.0
+    for j in range(1, degree + 1):
+        _basis_step(j, span, t, knots, out, left, right)
+
+
 @numba.njit(cache=True)
 def basis_funs(span, t, degree, knots, out):
     """The degree + 1 non-zero basis functions at t (Piegl & Tiller A2.2 BasisFuns).
 
     ``out[r]`` is N_{span-degree+r, degree}(t).
     """
-    left = np.empty(degree + 1)
-    right = np.empty(degree + 1)
-    out[0] = 1.0
-    for j in range(1, degree + 1):
-        left[j] = t - knots[span + 1 - j]
-        right[j] = knots[span + j] - t
-        saved = 0.0
-        for r in range(j):
-            temp = out[r] / (right[r + 1] + left[j - r])
-            out[r] = saved + right[r + 1] * temp
-            saved = left[j - r] * temp
-        out[j] = saved
+    basis_funs_scratch(span, t, degree, knots, out, np.empty(degree + 1), np.empty(degree + 1))
 
 
 @numba.njit(cache=True)
@@ -189,85 +224,7 @@ def basis_funs_first_derivative(span, t, degree, knots, values, derivatives, lef
                     if den > 0.0:
                         d -= values[r] / den
                 derivatives[r] = p * d
-        left[j] = t - knots[span + 1 - j]
-        right[j] = knots[span + j] - t
-        saved = 0.0
-        for r in range(j):
-            temp = values[r] / (right[r + 1] + left[j - r])
-            values[r] = saved + right[r + 1] * temp
-            saved = left[j - r] * temp
-        values[j] = saved
-
-
-@numba.njit(cache=True)
-def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_derivatives):
-    """Rational tensor-product surface and its first derivatives at points (x[k], y[k]).
-
-    S = A / D with A = sum R_ab N_a(x) N_b(y) Q_ab and D = sum R_ab N_a(x) N_b(y); the
-    derivatives follow the quotient rule S_x = (A_x - S D_x) / D (Piegl & Tiller eq. 4.8 in
-    homogeneous form). Non-finite coordinates give NaN. Parameters beyond the knot range are
-    evaluated on the end span (callers decide what to do outside the region).
-    """
-    n = x.shape[0]
-    n0 = control.shape[0]
-    n1 = control.shape[1]
-    p = degree
-    z = np.empty(n)
-    dzdx = np.empty(n) if with_derivatives else np.empty(0)
-    dzdy = np.empty(n) if with_derivatives else np.empty(0)
-    bx = np.empty(p + 1)
-    by = np.empty(p + 1)
-    dbx = np.zeros(p + 1)
-    dby = np.zeros(p + 1)
-    left = np.empty(p + 1)
-    right = np.empty(p + 1)
-    for k in range(n):
-        if not (math.isfinite(x[k]) and math.isfinite(y[k])):
-            z[k] = np.nan
-            if with_derivatives:
-                dzdx[k] = np.nan
-                dzdy[k] = np.nan
-            continue
-        sx = find_span(n0, p, x[k], knots_x)
-        sy = find_span(n1, p, y[k], knots_y)
-        if with_derivatives:
-            basis_funs_first_derivative(sx, x[k], p, knots_x, bx, dbx, left, right)
-            basis_funs_first_derivative(sy, y[k], p, knots_y, by, dby, left, right)
-        else:
-            basis_funs_first_derivative(sx, x[k], p, knots_x, bx, dbx, left, right)
-            basis_funs_first_derivative(sy, y[k], p, knots_y, by, dby, left, right)
-        a = 0.0
-        d = 0.0
-        ax = 0.0
-        dx = 0.0
-        ay = 0.0
-        dy = 0.0
-        for i in range(p + 1):
-            ia = sx - p + i
-            ra = 0.0
-            rd = 0.0
-            ra_y = 0.0
-            rd_y = 0.0
-            for j in range(p + 1):
-                jb = sy - p + j
-                r = weights[ia, jb]
-                rq = r * control[ia, jb]
-                ra += by[j] * rq
-                rd += by[j] * r
-                ra_y += dby[j] * rq
-                rd_y += dby[j] * r
-            a += bx[i] * ra
-            d += bx[i] * rd
-            ax += dbx[i] * ra
-            dx += dbx[i] * rd
-            ay += bx[i] * ra_y
-            dy += bx[i] * rd_y
-        s = a / d
-        z[k] = s
-        if with_derivatives:
-            dzdx[k] = (ax - s * dx) / d
-            dzdy[k] = (ay - s * dy) / d
-    return z, dzdx, dzdy
+        _basis_step(j, span, t, knots, values, left, right)
 
 
 # -------------------------------------------------------------------------------------------
@@ -275,39 +232,9 @@ def rational_surface(x, y, knots_x, knots_y, degree, control, weights, with_deri
 
 
 @numba.njit(cache=True, inline="always")
-def _uniform_span(n_ctrl, degree, t, knots, inv_width):
-    """Knot span of t on a clamped uniform knot vector (t inside the knot range).
-
-    The span follows from one multiplication; a comparison on each side corrects the rounding
-    of t near a knot, so the result equals :func:`find_span`.
-    """
-    n = n_ctrl - 1
-    low = knots[degree]
-    if t >= knots[n + 1]:
-        return n
-    if t <= low:
-        return degree
-    s = degree + int((t - low) * inv_width)
-    if s > n:
-        s = n
-    if s < degree:
-        s = degree
-    while s > degree and t < knots[s]:
-        s -= 1
-    while s < n and t >= knots[s + 1]:
-        s += 1
-    return s
-
-
-@numba.njit(cache=True, inline="always")
-def _point_value(px, py, kx, ky, p, control, weights, inv_wx, inv_wy, bx, by, left, right):
-    """S(px, py) - in local coordinates, inside the knot range - as A / D (no derivatives)."""
-    n0 = control.shape[0]
-    n1 = control.shape[1]
-    sx = _uniform_span(n0, p, px, kx, inv_wx)
-    sy = _uniform_span(n1, p, py, ky, inv_wy)
-    _basis_values(sx, px, p, kx, n0, inv_wx, bx, left, right)
-    _basis_values(sy, py, p, ky, n1, inv_wy, by, left, right)
+def _rational_sums(sx, sy, p, control, weights, bx, by):
+    """A = sum R_ab Q_ab N_a N_b and D = sum R_ab N_a N_b over the (p + 1)^2 control points of
+    spans (sx, sy), basis values ``bx``/``by``: the numerator and denominator of S = A / D."""
     a = 0.0
     d = 0.0
     for i in range(p + 1):
@@ -321,6 +248,60 @@ def _point_value(px, py, kx, ky, p, control, weights, inv_wx, inv_wy, bx, by, le
             rd += r
         a += bx[i] * ra
         d += bx[i] * rd
+    return a, d
+
+
+@numba.njit(cache=True, inline="always")
+def _rational_sums_first_derivatives(sx, sy, p, control, weights, bx, by, dbx, dby):
+    """A, D (as :func:`_rational_sums`, another summation order) and their x and y
+    derivatives A_x, D_x, A_y, D_y from the basis derivatives ``dbx``/``dby``."""
+    a = 0.0
+    d = 0.0
+    ax = 0.0
+    dx = 0.0
+    ay = 0.0
+    dy = 0.0
+    for i in range(p + 1):
+        ia = sx - p + i
+        ra = 0.0
+        rd = 0.0
+        ra_y = 0.0
+        rd_y = 0.0
+        for j in range(p + 1):
+            jb = sy - p + j
+            r = weights[ia, jb]
+            rq = r * control[ia, jb]
+            ra += by[j] * rq
+            rd += by[j] * r
+            ra_y += dby[j] * rq
+            rd_y += dby[j] * r
+        a += bx[i] * ra
+        d += bx[i] * rd
+        ax += dbx[i] * ra
+        dx += dbx[i] * rd
+        ay += bx[i] * ra_y
+        dy += bx[i] * rd_y
+    return a, d, ax, dx, ay, dy
+
+
+@numba.njit(cache=True, inline="always")
+def quotient_rule(a, d, ax, dx, ay, dy):
+    """S = A / D and its derivatives S_x = (A_x - S D_x) / D, S_y = (A_y - S D_y) / D
+    (Piegl & Tiller eq. 4.8 in homogeneous form)."""
+    s = a / d
+    return s, (ax - s * dx) / d, (ay - s * dy) / d
+
+
+@numba.njit(cache=True, inline="always")
+def _point_value(px, py, kx, ky, p, control, weights, inv_wx, inv_wy, bx, by, left, right):
+    """S(px, py) - in local coordinates, inside the knot range - as A / D (no derivatives)."""
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    sx = _uniform_span(n0, p, px, kx, inv_wx)
+    sy = _uniform_span(n1, p, py, ky, inv_wy)
+    _basis_values(sx, px, p, kx, n0, inv_wx, bx, left, right)
+    _basis_values(sy, py, p, ky, n1, inv_wy, by, left, right)
+    a, d = _rational_sums(sx, sy, p, control, weights, bx, by)
     return a / d
 
 
@@ -343,21 +324,6 @@ def _basis_values(span, t, degree, knots, n_ctrl, inv_width, out, left, right):
         basis_funs_scratch(span, t, degree, knots, out, left, right)
 
 
-@numba.njit(cache=True, inline="always")
-def basis_funs_scratch(span, t, degree, knots, out, left, right):
-    """Piegl & Tiller A2.2 BasisFuns with caller-provided scratch ``left``/``right``."""
-    out[0] = 1.0
-    for j in range(1, degree + 1):
-        left[j] = t - knots[span + 1 - j]
-        right[j] = knots[span + j] - t
-        saved = 0.0
-        for r in range(j):
-            temp = out[r] / (right[r + 1] + left[j - r])
-            out[r] = saved + right[r + 1] * temp
-            saved = left[j - r] * temp
-        out[j] = saved
-
-
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
@@ -377,8 +343,8 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     ky1 = knots_y[knots_y.shape[0] - 1]
     n0 = control.shape[0]
     n1 = control.shape[1]
-    inv_wx = (n0 - p) / (knots_x[n0] - knots_x[p])
-    inv_wy = (n1 - p) / (knots_y[n1] - knots_y[p])
+    inv_wx = _inverse_span_width(n0, p, knots_x)
+    inv_wy = _inverse_span_width(n1, p, knots_y)
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
     for c in numba.prange(n_chunks):
@@ -430,7 +396,8 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, knots_y, degree,
                             control, weights, with_derivatives):
-    """:func:`rational_surface` at world points (x[k], y[k]) of a surface with local origin
+    """Rational tensor-product surface S = A / D and its first derivatives (quotient rule
+    S_x = (A_x - S D_x) / D) at world points (x[k], y[k]) of a surface with local origin
     (origin_x, origin_y), spans found in O(1) on the uniform knots.
 
     NaN for non-finite input and for points outside the knot range widened by
@@ -445,8 +412,8 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
     z = np.empty(n)
     dzdx = np.empty(n) if with_derivatives else np.empty(0)
     dzdy = np.empty(n) if with_derivatives else np.empty(0)
-    inv_wx = (n0 - p) / (knots_x[n0] - knots_x[p])
-    inv_wy = (n1 - p) / (knots_y[n1] - knots_y[p])
+    inv_wx = _inverse_span_width(n0, p, knots_x)
+    inv_wy = _inverse_span_width(n1, p, knots_y)
     lo_x = knots_x[0] - tol_x
     hi_x = knots_x[knots_x.shape[0] - 1] + tol_x
     lo_y = knots_y[0] - tol_y
@@ -477,36 +444,9 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
             sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
             basis_funs_first_derivative(sx, xk, p, knots_x, bx, dbx, left, right)
             basis_funs_first_derivative(sy, yk, p, knots_y, by, dby, left, right)
-            a = 0.0
-            d = 0.0
-            ax = 0.0
-            dx = 0.0
-            ay = 0.0
-            dy = 0.0
-            for i in range(p + 1):
-                ia = sx - p + i
-                ra = 0.0
-                rd = 0.0
-                ra_y = 0.0
-                rd_y = 0.0
-                for j in range(p + 1):
-                    jb = sy - p + j
-                    r = weights[ia, jb]
-                    rq = r * control[ia, jb]
-                    ra += by[j] * rq
-                    rd += by[j] * r
-                    ra_y += dby[j] * rq
-                    rd_y += dby[j] * r
-                a += bx[i] * ra
-                d += bx[i] * rd
-                ax += dbx[i] * ra
-                dx += dbx[i] * rd
-                ay += bx[i] * ra_y
-                dy += bx[i] * rd_y
-            s = a / d
-            z[k] = s
-            dzdx[k] = (ax - s * dx) / d
-            dzdy[k] = (ay - s * dy) / d
+            a, d, ax, dx, ay, dy = _rational_sums_first_derivatives(sx, sy, p, control, weights,
+                                                                    bx, by, dbx, dby)
+            z[k], dzdx[k], dzdy[k] = quotient_rule(a, d, ax, dx, ay, dy)
     return z, dzdx, dzdy
 
 
