@@ -527,6 +527,95 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
     return np.ascontiguousarray(lower.T), rhs
 
 
+@numba.njit(cache=True, inline="always")
+def clamped_basis_first_derivative(t, n_ctrl, degree, knots, tol, values, derivatives, left,
+                                   right):
+    """Span of t, clamped into the knot range, with the basis values and first derivatives
+    there (:func:`basis_funs_first_derivative`); -1 and nothing written where t lies outside
+    the knot range widened by ``tol``."""
+    low = knots[0]
+    high = knots[knots.shape[0] - 1]
+    if not (t >= low - tol and t <= high + tol):
+        return -1
+    t = min(max(t, low), high)
+    span = find_span(n_ctrl, degree, t, knots)
+    basis_funs_first_derivative(span, t, degree, knots, values, derivatives, left, right)
+    return span
+
+
+@numba.njit(cache=True)
+def basis_first_derivative_table(t, n_ctrl, degree, knots, tol):
+    """:func:`clamped_basis_first_derivative` at every t[j]: ``spans`` (m,) (-1 outside),
+    ``values`` and ``derivatives`` (m, degree + 1) (0 outside)."""
+    m = t.shape[0]
+    p = degree
+    spans = np.full(m, -1, np.int64)
+    values = np.zeros((m, p + 1))
+    derivatives = np.zeros((m, p + 1))
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    tmp = np.empty(p + 1)
+    dtmp = np.empty(p + 1)
+    for j in range(m):
+        s = clamped_basis_first_derivative(t[j], n_ctrl, p, knots, tol, tmp, dtmp, left, right)
+        if s < 0:
+            continue
+        spans[j] = s
+        for b in range(p + 1):
+            values[j, b] = tmp[b]
+            derivatives[j, b] = dtmp[b]
+    return spans, values, derivatives
+
+
+@numba.njit(cache=True, inline="always")
+def contract_row(sx, degree, bx, dbx, weights, weighted_control, a_row, d_row, ax_row, dx_row):
+    """The rational surface contracted along x at one grid row (span ``sx``, basis values
+    ``bx`` and derivatives ``dbx``): for every control column b, a_row[b] = sum_a N_a R Q,
+    d_row[b] = sum_a N_a R, and ax_row, dx_row the same with N'_a (R Q = ``weighted_control``)."""
+    p = degree
+    for b in range(a_row.shape[0]):
+        a = 0.0
+        d = 0.0
+        ax = 0.0
+        dx = 0.0
+        for k in range(p + 1):
+            r = weights[sx - p + k, b]
+            q = weighted_control[sx - p + k, b]
+            a += bx[k] * q
+            d += bx[k] * r
+            ax += dbx[k] * q
+            dx += dbx[k] * r
+        a_row[b] = a
+        d_row[b] = d
+        ax_row[b] = ax
+        dx_row[b] = dx
+
+
+@numba.njit(cache=True, inline="always")
+def row_node_value(sy, degree, by, dby, j, a_row, d_row, ax_row, dx_row):
+    """S, S_x, S_y at grid node j of a row contracted by :func:`contract_row` (span ``sy``,
+    basis values ``by[j]`` and derivatives ``dby[j]``): degree + 1 terms per sum, then the
+    quotient rule."""
+    p = degree
+    a = 0.0
+    d = 0.0
+    ax = 0.0
+    dx = 0.0
+    ay = 0.0
+    dy = 0.0
+    for k in range(p + 1):
+        b = sy - p + k
+        v = by[j, k]
+        w = dby[j, k]
+        a += v * a_row[b]
+        d += v * d_row[b]
+        ax += v * ax_row[b]
+        dx += v * dx_row[b]
+        ay += w * a_row[b]
+        dy += w * d_row[b]
+    return quotient_rule(a, d, ax, dx, ay, dy)
+
+
 @numba.njit(cache=True, error_model="numpy")
 def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_x, tol_y):
     """Rational surface and first derivatives at every grid node (x[i], y[j]) (local
@@ -547,25 +636,7 @@ def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_
     gy = np.full((mx, my), np.nan)
     left = np.empty(p + 1)
     right = np.empty(p + 1)
-    # basis along y, once
-    span_y = np.full(my, -1, np.int64)
-    by = np.zeros((my, p + 1))
-    dby = np.zeros((my, p + 1))
-    ky0 = knots_y[0]
-    ky1 = knots_y[knots_y.shape[0] - 1]
-    tmp = np.empty(p + 1)
-    dtmp = np.empty(p + 1)
-    for j in range(my):
-        t = y[j]
-        if not (t >= ky0 - tol_y and t <= ky1 + tol_y):
-            continue
-        t = min(max(t, ky0), ky1)
-        s = find_span(n1, p, t, knots_y)
-        span_y[j] = s
-        basis_funs_first_derivative(s, t, p, knots_y, tmp, dtmp, left, right)
-        for b in range(p + 1):
-            by[j, b] = tmp[b]
-            dby[j, b] = dtmp[b]
+    span_y, by, dby = basis_first_derivative_table(y, n1, p, knots_y, tol_y)
     rq = weights * control
     a_row = np.empty(n1)
     d_row = np.empty(n1)
@@ -573,55 +644,17 @@ def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_
     dx_row = np.empty(n1)
     bx = np.empty(p + 1)
     dbx = np.empty(p + 1)
-    kx0 = knots_x[0]
-    kx1 = knots_x[knots_x.shape[0] - 1]
     for i in range(mx):
-        t = x[i]
-        if not (t >= kx0 - tol_x and t <= kx1 + tol_x):
+        sx = clamped_basis_first_derivative(x[i], n0, p, knots_x, tol_x, bx, dbx, left, right)
+        if sx < 0:
             continue
-        t = min(max(t, kx0), kx1)
-        sx = find_span(n0, p, t, knots_x)
-        basis_funs_first_derivative(sx, t, p, knots_x, bx, dbx, left, right)
-        for b in range(n1):
-            a = 0.0
-            d = 0.0
-            ax = 0.0
-            dx = 0.0
-            for k in range(p + 1):
-                r = weights[sx - p + k, b]
-                q = rq[sx - p + k, b]
-                a += bx[k] * q
-                d += bx[k] * r
-                ax += dbx[k] * q
-                dx += dbx[k] * r
-            a_row[b] = a
-            d_row[b] = d
-            ax_row[b] = ax
-            dx_row[b] = dx
+        contract_row(sx, p, bx, dbx, weights, rq, a_row, d_row, ax_row, dx_row)
         for j in range(my):
             sy = span_y[j]
             if sy < 0:
                 continue
-            a = 0.0
-            d = 0.0
-            ax = 0.0
-            dx = 0.0
-            ay = 0.0
-            dy = 0.0
-            for k in range(p + 1):
-                b = sy - p + k
-                v = by[j, k]
-                w = dby[j, k]
-                a += v * a_row[b]
-                d += v * d_row[b]
-                ax += v * ax_row[b]
-                dx += v * dx_row[b]
-                ay += w * a_row[b]
-                dy += w * d_row[b]
-            s = a / d
-            z[i, j] = s
-            gx[i, j] = (ax - s * dx) / d
-            gy[i, j] = (ay - s * dy) / d
+            z[i, j], gx[i, j], gy[i, j] = row_node_value(sy, p, by, dby, j, a_row, d_row,
+                                                         ax_row, dx_row)
     return z, gx, gy
 
 

@@ -247,29 +247,8 @@ def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, hig
     state = np.empty((nx, ny), np.uint8)
     total = w_slope + w_step + w_rough
     to_deg = 180.0 / math.pi
-    left = np.empty(p + 1)
-    right = np.empty(p + 1)
-    span_y = np.full(ny, -1, np.int64)
-    by = np.zeros((ny, p + 1))
-    dby = np.zeros((ny, p + 1))
-    tmp = np.empty(p + 1)
-    dtmp = np.empty(p + 1)
-    ky0 = knots_y[0]
-    ky1 = knots_y[knots_y.shape[0] - 1]
-    for j in range(ny):
-        t = y[j]
-        if not (t >= ky0 - tol and t <= ky1 + tol):
-            continue
-        t = min(max(t, ky0), ky1)
-        sj = _bs.find_span(n1, p, t, knots_y)
-        span_y[j] = sj
-        _bs.basis_funs_first_derivative(sj, t, p, knots_y, tmp, dtmp, left, right)
-        for b in range(p + 1):
-            by[j, b] = tmp[b]
-            dby[j, b] = dtmp[b]
+    span_y, by, dby = _bs.basis_first_derivative_table(y, n1, p, knots_y, tol)
     rq = weights * control
-    kx0 = knots_x[0]
-    kx1 = knots_x[knots_x.shape[0] - 1]
     for i in numba.prange(nx):
         a_row = np.empty(n1)
         d_row = np.empty(n1)
@@ -279,51 +258,14 @@ def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, hig
         dbx = np.empty(p + 1)
         lft = np.empty(p + 1)
         rgt = np.empty(p + 1)
-        sx = 0
-        t = x[i]
-        row_inside = t >= kx0 - tol and t <= kx1 + tol
+        sx = _bs.clamped_basis_first_derivative(x[i], n0, p, knots_x, tol, bx, dbx, lft, rgt)
+        row_inside = sx >= 0
         if row_inside:
-            t = min(max(t, kx0), kx1)
-            sx = _bs.find_span(n0, p, t, knots_x)
-            _bs.basis_funs_first_derivative(sx, t, p, knots_x, bx, dbx, lft, rgt)
-            for b in range(n1):
-                a = 0.0
-                d = 0.0
-                ax = 0.0
-                dx = 0.0
-                for k in range(p + 1):
-                    r = weights[sx - p + k, b]
-                    q = rq[sx - p + k, b]
-                    a += bx[k] * q
-                    d += bx[k] * r
-                    ax += dbx[k] * q
-                    dx += dbx[k] * r
-                a_row[b] = a
-                d_row[b] = d
-                ax_row[b] = ax
-                dx_row[b] = dx
+            _bs.contract_row(sx, p, bx, dbx, weights, rq, a_row, d_row, ax_row, dx_row)
         for j in range(ny):
             sy = span_y[j]
             if row_inside and sy >= 0:
-                a = 0.0
-                d = 0.0
-                ax = 0.0
-                dx = 0.0
-                ay = 0.0
-                dy = 0.0
-                for k in range(p + 1):
-                    b = sy - p + k
-                    v = by[j, k]
-                    w = dby[j, k]
-                    a += v * a_row[b]
-                    d += v * d_row[b]
-                    ax += v * ax_row[b]
-                    dx += v * dx_row[b]
-                    ay += w * a_row[b]
-                    dy += w * d_row[b]
-                sv = a / d
-                gx = (ax - sv * dx) / d
-                gy = (ay - sv * dy) / d
+                _, gx, gy = _bs.row_node_value(sy, p, by, dby, j, a_row, d_row, ax_row, dx_row)
                 sl = math.atan(math.sqrt(gx * gx + gy * gy)) * to_deg
                 slope_term = (sl / max_slope_deg) ** 2
                 is_lethal = sl > max_slope_deg
