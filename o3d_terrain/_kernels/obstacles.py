@@ -35,47 +35,6 @@ def bin_points(x, y, x_min, y_min, cell_size, nx, ny):
 
 
 @numba.njit(cache=True)
-def cell_statistics(ix, iy, h, use, nx, ny, rough_cap):
-    """Per-cell count, highest h, and sum/sum of squares of h over points with h <= rough_cap.
-
-    Only points with ``use[k]`` and a cell (ix >= 0) and a finite h count. Returns
-    ``count`` (nx, ny) int32, ``highest`` (nx, ny) float64 (-inf where empty), ``rough_n``,
-    ``rough_sum`` and ``rough_sum2`` (nx, ny): the roughness moments.
-    """
-    count = np.zeros((nx, ny), np.int32)
-    highest = np.full((nx, ny), -np.inf)
-    rough_n = np.zeros((nx, ny), np.int32)
-    rough_sum = np.zeros((nx, ny))
-    rough_sum2 = np.zeros((nx, ny))
-    for k in range(ix.shape[0]):
-        i = ix[k]
-        if i < 0 or not use[k]:
-            continue
-        v = h[k]
-        if not math.isfinite(v):
-            continue
-        j = iy[k]
-        count[i, j] += 1
-        if v > highest[i, j]:
-            highest[i, j] = v
-        if v <= rough_cap:
-            rough_n[i, j] += 1
-            rough_sum[i, j] += v
-            rough_sum2[i, j] += v * v
-    return count, highest, rough_n, rough_sum, rough_sum2
-
-
-@numba.njit(cache=True)
-def mark_cells(ix, iy, select, nx, ny):
-    """(nx, ny) uint8 mask: 1 where a selected point falls."""
-    mask = np.zeros((nx, ny), np.uint8)
-    for k in range(ix.shape[0]):
-        if select[k] and ix[k] >= 0:
-            mask[ix[k], iy[k]] = 1
-    return mask
-
-
-@numba.njit(cache=True)
 def cluster_moments(point_cluster, x, y, z, h, n_clusters):
     """Per cluster: point count, sums of x, y, z, lowest z, highest z, highest h."""
     count = np.zeros(n_clusters, np.int64)
@@ -194,7 +153,7 @@ def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
 @numba.njit(cache=True)
 def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
     """Per-cell count, highest h, and count and sum of squares of h over points with
-    h <= rough_cap (the statistics of :func:`cell_statistics` the cost map needs).
+    h <= rough_cap (the roughness moments of the cost map).
 
     Only points with ``use[k]``, a cell (ix >= 0) and a finite h count.
     """

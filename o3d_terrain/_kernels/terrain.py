@@ -1,4 +1,5 @@
-"""Normal equations of the weighted tensor-product B-spline fit, in symmetric band form.
+"""Normal equations of the weighted tensor-product B-spline fit: the thin-plate band, grid
+projections and the robust re-weighting passes.
 
 Control point (a, b) of an (n0, n1) grid has the unknown index k = a * n1 + b; a cell's
 (degree + 1)^2 basis functions touch indices at most ``degree * n1 + degree`` apart, so the normal
@@ -10,55 +11,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
-
-@numba.njit(cache=True)
-def assemble_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_values, n0, n1,
-                  degree, bandwidth):
-    """Band of sum_c w_c b_c b_c^T and the vector sum_c v_c b_c over grid cells c = (i, j).
-
-    ``b_c`` holds the tensor-product basis values N_a(x_i) N_b(y_j); ``matrix_weights[i, j]``
-    is w_c and ``rhs_values[i, j]`` is v_c (typically w_c times the sample height). Cells with
-    w_c = 0 and v_c = 0 are skipped.
-    """
-    p = degree
-    size = n0 * n1
-    band = np.zeros((bandwidth + 1, size))
-    rhs = np.zeros(size)
-    q = (p + 1) * (p + 1)
-    idx = np.empty(q, np.int64)
-    val = np.empty(q)
-    m0 = spans_x.shape[0]
-    m1 = spans_y.shape[0]
-    for i in range(m0):
-        sx = spans_x[i]
-        if sx < 0:
-            continue
-        for j in range(m1):
-            w = matrix_weights[i, j]
-            v = rhs_values[i, j]
-            if w == 0.0 and v == 0.0:
-                continue
-            sy = spans_y[j]
-            if sy < 0:
-                continue
-            t = 0
-            for a in range(p + 1):
-                base = (sx - p + a) * n1 + (sy - p)
-                for b in range(p + 1):
-                    idx[t] = base + b
-                    val[t] = basis_x[i, a] * basis_y[j, b]
-                    t += 1
-            for u in range(q):
-                ku = idx[u]
-                vu = val[u]
-                rhs[ku] += v * vu
-                wu = w * vu
-                for s in range(q):
-                    ks = idx[s]
-                    if ks >= ku:
-                        band[ks - ku, ku] += wu * val[s]
-    return band, rhs
 
 
 @numba.njit(cache=True)
@@ -146,75 +98,6 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, gr
                         if 0 <= d <= bandwidth:
                             band[d, idx[u]] += w * coef[u] * coef[s]
     return band
-
-
-@numba.njit(cache=True)
-def solve_band_cholesky(band, rhs):
-    """Solve A x = rhs for symmetric positive definite A in lower band storage.
-
-    Right-looking banded Cholesky A = L L^T (Golub & Van Loan, Algorithm 4.3.5), then forward
-    and back substitution, on a row-major copy (each column of L contiguous). ``band`` and
-    ``rhs`` are not modified. Returns (x, ok); ok is False when a pivot is not positive.
-    """
-    bw = band.shape[0] - 1
-    n = band.shape[1]
-    l = np.ascontiguousarray(band.T)  # l[k, d] = A[k + d, k]
-    for j in range(n):
-        pivot = l[j, 0]
-        if not pivot > 0.0:
-            return np.zeros(n), False
-        ljj = np.sqrt(pivot)
-        l[j, 0] = ljj
-        reach = min(bw, n - 1 - j)
-        inv = 1.0 / ljj
-        for d in range(1, reach + 1):
-            l[j, d] *= inv
-        for d1 in range(1, reach + 1):
-            v1 = l[j, d1]
-            if v1 == 0.0:
-                continue
-            col = j + d1
-            for d2 in range(d1, reach + 1):
-                l[col, d2 - d1] -= l[j, d2] * v1
-    x = rhs.copy()
-    for j in range(n):
-        x[j] /= l[j, 0]
-        reach = min(bw, n - 1 - j)
-        xj = x[j]
-        for d in range(1, reach + 1):
-            x[j + d] -= l[j, d] * xj
-    for j in range(n - 1, -1, -1):
-        reach = min(bw, n - 1 - j)
-        acc = x[j]
-        for d in range(1, reach + 1):
-            acc -= l[j, d] * x[j + d]
-        x[j] = acc / l[j, 0]
-    return x, True
-
-
-@numba.njit(cache=True)
-def grid_evaluate(spans_x, basis_x, spans_y, basis_y, coefficients, mask):
-    """(Bx C By^T)[i, j] at the cells where ``mask`` is true (0 elsewhere): a tensor-product
-    spline with coefficients C evaluated at grid-cell centres, using only the non-zero basis
-    values."""
-    p = basis_x.shape[1] - 1
-    m0 = spans_x.shape[0]
-    m1 = spans_y.shape[0]
-    out = np.zeros((m0, m1))
-    for i in range(m0):
-        sx = spans_x[i] - p
-        for j in range(m1):
-            if not mask[i, j]:
-                continue
-            sy = spans_y[j] - p
-            acc = 0.0
-            for a in range(p + 1):
-                row = 0.0
-                for b in range(p + 1):
-                    row += basis_y[j, b] * coefficients[sx + a, sy + b]
-                acc += basis_x[i, a] * row
-            out[i, j] = acc
-    return out
 
 
 @numba.njit(cache=True)
