@@ -146,6 +146,19 @@ def _box_corners(center, size, yaw_deg) -> np.ndarray:
     return np.array([c + u + v, c - u + v, c - u - v, c + u - v])
 
 
+def _length_first(w: float, h: float, angle: float) -> tuple[float, float, float]:
+    """A ``cv2.minAreaRect`` size and angle as (length, width, yaw_deg): length >= width, yaw
+    the direction of the length in (-90, 90] degrees."""
+    if h > w:
+        w, h = h, w
+        angle += 90.0
+    while angle > 90.0:
+        angle -= 180.0
+    while angle <= -90.0:
+        angle += 180.0
+    return w, h, angle
+
+
 def oriented_box(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Minimum-area rectangle of (K, 2) points: (center, (length, width), yaw_deg).
 
@@ -157,13 +170,7 @@ def oriented_box(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     xy = np.asarray(xy, dtype=np.float64)
     origin = xy[0]
     (cx, cy), (w, h), angle = cv2.minAreaRect((xy - origin).astype(np.float32))
-    if h > w:
-        w, h = h, w
-        angle += 90.0
-    while angle > 90.0:
-        angle -= 180.0
-    while angle <= -90.0:
-        angle += 180.0
+    w, h, angle = _length_first(w, h, angle)
     return origin + np.array([cx, cy]), np.array([float(w), float(h)]), float(angle)
 
 
@@ -182,13 +189,7 @@ def _oriented_boxes(xy: np.ndarray, starts: np.ndarray):
     yaws = np.empty(k)
     for g in range(k):
         (cx, cy), (w, h), angle = cv2.minAreaRect(relative[starts[g]:starts[g + 1]])
-        if h > w:
-            w, h = h, w
-            angle += 90.0
-        while angle > 90.0:
-            angle -= 180.0
-        while angle <= -90.0:
-            angle += 180.0
+        w, h, angle = _length_first(w, h, angle)
         offsets[g] = cx, cy
         sizes[g] = w, h
         yaws[g] = angle

@@ -126,10 +126,9 @@ def _sliding_min_1d(values, radius, out):
 
 
 @numba.njit(cache=True)
-def window_min(values, radius):
-    """Minimum over the (2 radius + 1)^2 square window around every cell (separable)."""
+def _sliding_min_rows(values, radius, out):
+    """out[i, :] = :func:`_sliding_min_1d` of values[i, :], row by row through a buffer."""
     nx, ny = values.shape
-    rows = np.empty((nx, ny))
     buf_in = np.empty(ny)
     buf_out = np.empty(ny)
     for i in range(nx):
@@ -137,16 +136,18 @@ def window_min(values, radius):
             buf_in[j] = values[i, j]
         _sliding_min_1d(buf_in, radius, buf_out)
         for j in range(ny):
-            rows[i, j] = buf_out[j]
+            out[i, j] = buf_out[j]
+
+
+@numba.njit(cache=True)
+def window_min(values, radius):
+    """Minimum over the (2 radius + 1)^2 square window around every cell (separable: along
+    rows, then along columns through the transposed views)."""
+    nx, ny = values.shape
+    rows = np.empty((nx, ny))
+    _sliding_min_rows(values, radius, rows)
     out = np.empty((nx, ny))
-    col_in = np.empty(nx)
-    col_out = np.empty(nx)
-    for j in range(ny):
-        for i in range(nx):
-            col_in[i] = rows[i, j]
-        _sliding_min_1d(col_in, radius, col_out)
-        for i in range(nx):
-            out[i, j] = col_out[i]
+    _sliding_min_rows(rows.T, radius, out.T)
     return out
 
 
