@@ -59,6 +59,17 @@ def cluster_moments(point_cluster, x, y, z, h, n_clusters):
     return count, sums, z_low, z_high, h_high
 
 
+@numba.njit(cache=True, inline="always")
+def _keep_extremes(best, value, c, k, a, b):
+    """Point k at (a, b) replaces the candidates of cell slot c that it beats along x, y,
+    x + y and x - y (both signs); ties keep the earlier point."""
+    keys = (a, -a, b, -b, a + b, -a - b, a - b, b - a)
+    for d in range(8):
+        if best[c, d] < 0 or keys[d] > value[c, d]:
+            best[c, d] = k
+            value[c, d] = keys[d]
+
+
 @numba.njit(cache=True)
 def hull_candidates(cell, x, y, n_cells):
     """Per occupied cell, the points extreme along x, y, x + y and x - y (both signs).
@@ -71,13 +82,7 @@ def hull_candidates(cell, x, y, n_cells):
     value = np.empty((n_cells, 8))
     for k in range(cell.shape[0]):
         c = cell[k]
-        a = x[k]
-        b = y[k]
-        keys = (a, -a, b, -b, a + b, -a - b, a - b, b - a)
-        for d in range(8):
-            if best[c, d] < 0 or keys[d] > value[c, d]:
-                best[c, d] = k
-                value[c, d] = keys[d]
+        _keep_extremes(best, value, c, k, x[k], y[k])
     return best
 
 
@@ -308,13 +313,7 @@ def hull_candidates_by_cell(cluster, ix, iy, ny, n_cells, x, y):
         if cluster[k] < 0:
             continue
         c = slot[ix[k] * ny + iy[k]]
-        a = x[k]
-        b = y[k]
-        keys = (a, -a, b, -b, a + b, -a - b, a - b, b - a)
-        for d in range(8):
-            if best[c, d] < 0 or keys[d] > value[c, d]:
-                best[c, d] = k
-                value[c, d] = keys[d]
+        _keep_extremes(best, value, c, k, x[k], y[k])
     mark = np.zeros(cluster.shape[0], np.bool_)
     for c in range(n_slots):
         for d in range(8):

@@ -13,6 +13,18 @@ import numba
 import numpy as np
 
 
+@numba.njit(cache=True, inline="always")
+def _second_difference(greville, a, h, coef):
+    """coef[:3]: h^2 times the second divided difference at abscissa a from its neighbours
+    a - 1 and a + 1 (unevenly spaced ``greville``); (1, -2, 1) for uniform spacing h."""
+    d0 = greville[a] - greville[a - 1]
+    d1 = greville[a + 1] - greville[a]
+    f = 2.0 * h * h / (d0 + d1)
+    coef[0] = f / d0
+    coef[1] = -f * (1.0 / d0 + 1.0 / d1)
+    coef[2] = f / d1
+
+
 @numba.njit(cache=True)
 def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, greville_x,
                         greville_y):
@@ -63,23 +75,13 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, gr
                     idx[0] = (a - 1) * n1 + b
                     idx[1] = a * n1 + b
                     idx[2] = (a + 1) * n1 + b
-                    d0 = greville_x[a] - greville_x[a - 1]
-                    d1 = greville_x[a + 1] - greville_x[a]
-                    f = 2.0 * hx * hx / (d0 + d1)
-                    coef[0] = f / d0
-                    coef[1] = -f * (1.0 / d0 + 1.0 / d1)
-                    coef[2] = f / d1
+                    _second_difference(greville_x, a, hx, coef)
                 elif kind == 1:
                     n = 3
                     idx[0] = a * n1 + b - 1
                     idx[1] = a * n1 + b
                     idx[2] = a * n1 + b + 1
-                    d0 = greville_y[b] - greville_y[b - 1]
-                    d1 = greville_y[b + 1] - greville_y[b]
-                    f = 2.0 * hy * hy / (d0 + d1)
-                    coef[0] = f / d0
-                    coef[1] = -f * (1.0 / d0 + 1.0 / d1)
-                    coef[2] = f / d1
+                    _second_difference(greville_y, b, hy, coef)
                 else:
                     n = 4
                     idx[0] = a * n1 + b
