@@ -125,7 +125,7 @@ def _sliding_min_1d(values, radius, out):
             out[i] = min(suffix[lo], prefix[hi])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _sliding_min_rows(values, radius, out):
     """out[i, :] = :func:`_sliding_min_1d` of values[i, :], row by row through a buffer."""
     nx, ny = values.shape
