@@ -36,6 +36,10 @@ METHODS = ("robust", "paper")
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
 
+#: fewest points for which eq. 1 can tell a compact cell from one holding a vertical face
+#: (with one or two points Z equals the lowest point whatever the points are)
+MIN_COMPACT_POINTS = 3
+
 
 @dataclass(frozen=True)
 class IterationRecord:
@@ -113,8 +117,9 @@ def fit_grid_detailed(
         (:func:`terrain_prior_mask`): connected compact cells keep full weight above the surface
         on the coarse layouts (steep narrow terrain such as a berm is not rejected before the
         layout can follow it) and a threshold widened by the in-cell spread of the steepest
-        slope on the final one. Off by default: on SemanticKITTI it lets single-ring cells on
-        building walls and bushes through (docs/algorithm.md).
+        slope on the final one; cells with fewer than 3 points are never compact. Off by
+        default: on SemanticKITTI it still lets cells on bush faces and building walls through
+        (docs/algorithm.md).
     max_slope_deg: steepest terrain between neighbouring cells (degrees).
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
@@ -193,8 +198,10 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
     the height of the lowest gap_slope_deg cone through the data). Seeds: measured cells that
     are the lowest within max_obstacle_width / 2. Obstacle walls are jumps steeper than the
     limit, so roofs and tops are not connected; steep smooth terrain is.
-    compact: connected cells whose sample (eq. 1) is within tolerance of their lowest point; a
-    cell holding a wall or a person (lowest point on the ground, sample above it) is not.
+    compact: connected cells with at least :data:`MIN_COMPACT_POINTS` points whose sample
+    (eq. 1) is within tolerance of their lowest point; a cell holding a wall or a person (lowest
+    point on the ground, sample above it) is not, nor is a cell with one or two points (there
+    eq. 1 equals the lowest point, so the test says nothing).
     Cells above the max-slope cone of another cell (Vosselman's slope filter: the top of a
     wall) are neither seeds nor crossed.
     """
@@ -211,7 +218,12 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
     crossed = np.where(walls, np.inf, crossed)
     connected = measured & _ground.connected_terrain(crossed, seeds & ~walls, c, step,
                                                       float(tolerance))
-    compact = connected & (grid.z - low <= tolerance)
+    # eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
+    # with one or two points (mean - sigma of two values is the lower one): such a cell (one
+    # ring crossing it, e.g. the slanted line of a tilted ring over a wall or a bush) carries
+    # no evidence of being compact, so it is not
+    testable = grid.count >= MIN_COMPACT_POINTS
+    compact = connected & testable & (grid.z - low <= tolerance)
     return connected, compact
 
 

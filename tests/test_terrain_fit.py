@@ -10,7 +10,8 @@ from o3d_terrain.grid import INVALID, MEASURED, HeightGrid, quantize_points
 from o3d_terrain.terrain import default_control_points, fit_grid, fit_grid_detailed
 
 
-def analytic_grid(fn, *, n=(48, 40), cell=0.5, x_min=0.0, y_min=-10.0, boxes=(), hole=None):
+def analytic_grid(fn, *, n=(48, 40), cell=0.5, x_min=0.0, y_min=-10.0, boxes=(), hole=None,
+                  points_per_cell=1):
     xc = x_min + (np.arange(n[0]) + 0.5) * cell
     yc = y_min + (np.arange(n[1]) + 0.5) * cell
     z = fn(xc[:, None], yc[None, :]) * np.ones(n)
@@ -21,7 +22,8 @@ def analytic_grid(fn, *, n=(48, 40), cell=0.5, x_min=0.0, y_min=-10.0, boxes=(),
     if hole is not None:
         state[hole] = INVALID
         z[hole] = 0.0
-    return HeightGrid(x_min, y_min, cell, z, np.ones(n, np.int64), state), xc, yc
+    count = np.where(state == MEASURED, points_per_cell, 0).astype(np.int64)
+    return HeightGrid(x_min, y_min, cell, z, count, state), xc, yc
 
 
 def hills(x, y):
@@ -152,7 +154,7 @@ def test_terrain_prior_follows_a_steep_narrow_berm_and_still_cuts_boxes():
     # boxes have vertical walls (a jump of their height between neighbouring cells), the berm's
     # flanks stay below the 45 deg slope limit
     boxes = [(6.0, -5.0, 1.0, 1.8), (16.0, -4.0, 2.0, 1.5)]
-    grid, xc, yc = analytic_grid(berm, boxes=boxes)
+    grid, xc, yc = analytic_grid(berm, boxes=boxes, points_per_cell=4)
     truth = berm(xc[:, None], yc[None, :])
     plain = fit_grid_detailed(grid, control_points=(28, 28))
     fit = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=True)
@@ -168,11 +170,61 @@ def test_terrain_prior_mask_rejects_roofs_of_any_width():
     from o3d_terrain.terrain import terrain_prior_mask
 
     # a 10 m wide, 4 m high building on a 10 % slope: the roof is never connected
-    grid, xc, yc = analytic_grid(lambda x, y: 0.1 * x, boxes=[(12.0, 0.0, 10.0, 4.0)])
+    grid, xc, yc = analytic_grid(lambda x, y: 0.1 * x, boxes=[(12.0, 0.0, 10.0, 4.0)],
+                                 points_per_cell=4)
     connected, compact = terrain_prior_mask(grid, max_obstacle_width=30.0)
     on_roof = grid.z - 0.1 * xc[:, None] > 1.0
     assert not connected[on_roof].any()
     assert connected[~on_roof].all() and compact[~on_roof].all()
+
+
+def single_ring_wall_next_to_berm():
+    """The berm (4 points per cell) and, at y = -7 m, the cells a tilted lidar ring leaves on a
+    wall: one point each, rising 0.25 m per 0.5 m cell (27 deg, under the 45 deg slope limit) from
+    the ground to 1.75 m, with no data around it (the ground there is hidden)."""
+    grid, xc, yc = analytic_grid(berm, points_per_cell=4)
+    z, count, state = grid.z.copy(), grid.count.copy(), grid.state.copy()
+    wall = np.zeros(grid.shape, bool)
+    iy = int(np.searchsorted(yc, -7.0))
+    state[21:33, iy - 3:iy + 4] = INVALID
+    count[21:33, iy - 3:iy + 4] = 0
+    for k in range(1, 8):
+        state[20 + k, iy] = MEASURED
+        z[20 + k, iy] += 0.25 * k
+        count[20 + k, iy] = 1
+        wall[20 + k, iy] = True
+    return HeightGrid(grid.x_min, grid.y_min, grid.cell_size, z, count, state), wall, xc, yc
+
+
+def test_terrain_prior_keeps_the_berm_compact_and_not_a_single_ring_wall():
+    from o3d_terrain.terrain import MIN_COMPACT_POINTS, terrain_prior_mask
+
+    grid, wall, xc, yc = single_ring_wall_next_to_berm()
+    connected, compact = terrain_prior_mask(grid)
+    # the staircase climbs slower than the slope limit: connectivity alone cannot tell it from
+    # terrain; one point per cell gives eq. 1 no in-cell spread to test, so it is not compact
+    assert connected[wall].all()
+    assert not compact[wall].any()
+    measured = grid.state == MEASURED
+    assert compact[measured & ~wall].all()  # the 37 deg berm flanks and the flat ground
+    assert (grid.count[wall] < MIN_COMPACT_POINTS).all()
+    # two points: mean - sigma is the lower one, so Z equals the lowest point whatever the
+    # upper one is (the reason a cell needs three points to be called compact)
+    pair = np.array([0.0, 1.7])
+    assert pair.mean() - pair.std() == pytest.approx(pair.min())
+
+
+def test_terrain_prior_fit_rejects_a_single_ring_wall_and_follows_the_berm():
+    grid, wall, xc, yc = single_ring_wall_next_to_berm()
+    truth = berm(xc[:, None], yc[None, :])
+    plain = fit_grid_detailed(grid, control_points=(28, 28))
+    fit = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=True)
+    assert fit.outliers[wall & (grid.z - truth > 0.5)].all()
+    err = fit.surface(xc[:, None], yc[None, :]) - truth
+    err_plain = plain.surface(xc[:, None], yc[None, :]) - truth
+    ground = (grid.state == MEASURED) & ~wall
+    assert np.abs(err[ground]).max() < 0.5 * np.abs(err_plain[ground]).max()
+    assert np.sqrt(np.mean(err[ground] ** 2)) < 0.05
 
 
 def test_terrain_prior_options_are_checked():
