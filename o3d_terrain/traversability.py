@@ -485,24 +485,18 @@ def traversability_cost(surface, cloud: Any = None, *,
 
     # the cost formula, with the slope from the surface's analytic derivatives
     x0, y0, _ = surface.origin
+    slope_deg = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
+                                      surface.degree, surface.control_points, surface.weights,
+                                      1e-9)
+    np.arctan(slope_deg, out=slope_deg)  # vectorised, unlike a per-cell atan in the kernel
+    np.multiply(slope_deg, 180.0 / math.pi, out=slope_deg)
     slope, step, rough, cost, lethal, state = _k.cost_cells(
-        xc - x0, yc - y0, surface.knots_x, surface.knots_y, surface.degree,
-        surface.control_points, surface.weights, 1e-9, count, highest, rn, rs2, occupied,
-        profile.max_slope_deg, lethal_step, profile.max_roughness, w[0], w[1], w[2],
-        float(unknown_cost), FREE, UNKNOWN)
+        slope_deg, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
+        profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE, UNKNOWN)
 
     # inflation by the footprint
     if lethal.any():
-        import cv2
-
-        if nx < 32767 and ny < 32767:
-            distance = cv2.distanceTransform((~lethal).astype(np.uint8), cv2.DIST_L2,
-                                             cv2.DIST_MASK_PRECISE) * cell_size
-        else:
-            from scipy import ndimage
-
-            distance = ndimage.distance_transform_edt(~lethal) * cell_size
-        _k.inflate(cost, state, lethal, distance, profile.inscribed_radius,
+        _k.inflate(cost, state, lethal, float(cell_size), profile.inscribed_radius,
                    profile.circumscribed_radius, float(inflation_scale), INSCRIBED, LETHAL)
     else:
         np.minimum(cost, 0.99, out=cost)

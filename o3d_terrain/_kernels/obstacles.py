@@ -184,25 +184,102 @@ def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, highest, rough_n,
-               rough_sum2, occupied, max_slope_deg, lethal_step, max_roughness, w_slope, w_step,
-               w_rough, unknown_cost, free_state, unknown_state):
-    """The cost formula of docs/obstacles.md on every cell (x[i], y[j]), before inflation.
+def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
+    """|grad S| of the rational surface at every node (x[i], y[j]) (local coordinates), float64;
+    NaN where x[i] or y[j] lies outside the knot range widened by ``tol`` (inside it,
+    clamped to the range), as :func:`~o3d_terrain._kernels.bspline.rational_surface_grid`.
 
-    The slope atan |grad S| (degrees) comes from the rational surface (local coordinates
-    x, y; NaN outside the knot range widened by ``tol``), contracted along x once per row;
-    step = max(0, highest), roughness = RMS (NaN where the cell has no point). Returns
-    float32 ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit,
-    step over the lethal step, or occupied) and uint8 ``state`` (``free_state`` where the
-    cell has a point, else ``unknown_state``). Decisions are taken in float64. Rows are
-    split over threads; every cell is computed alone, so the result does not depend on the
-    thread count.
+    The tensor product is contracted along y once for all columns (4 tables (n0, len(y)):
+    sums over b of N_b(y_j) R Q, N_b R and the same with N'_b), then each grid row is
+    degree + 1 scaled additions of table rows per sum, contiguous along y, and the quotient
+    rule S_x = (A_x - S D_x) / D, S_y = (A_y - S D_y) / D. Rows are split over threads.
     """
     nx = x.shape[0]
     ny = y.shape[0]
     p = degree
     n0 = control.shape[0]
     n1 = control.shape[1]
+    span_y, by, dby = _bs.basis_first_derivative_table(y, n1, p, knots_y, tol)
+    rq = weights * control
+    t_a = np.empty((n0, ny))
+    t_d = np.empty((n0, ny))
+    t_ay = np.empty((n0, ny))
+    t_dy = np.empty((n0, ny))
+    for a in numba.prange(n0):
+        for j in range(ny):
+            sy = span_y[j]
+            if sy < 0:  # NaN propagates to every node of the column
+                t_a[a, j] = np.nan
+                t_d[a, j] = np.nan
+                t_ay[a, j] = np.nan
+                t_dy[a, j] = np.nan
+                continue
+            va = 0.0
+            vd = 0.0
+            vay = 0.0
+            vdy = 0.0
+            for k in range(p + 1):
+                b = sy - p + k
+                va += by[j, k] * rq[a, b]
+                vd += by[j, k] * weights[a, b]
+                vay += dby[j, k] * rq[a, b]
+                vdy += dby[j, k] * weights[a, b]
+            t_a[a, j] = va
+            t_d[a, j] = vd
+            t_ay[a, j] = vay
+            t_dy[a, j] = vdy
+    out = np.empty((nx, ny))
+    for i in numba.prange(nx):
+        bx = np.empty(p + 1)
+        dbx = np.empty(p + 1)
+        lft = np.empty(p + 1)
+        rgt = np.empty(p + 1)
+        sx = _bs.clamped_basis_first_derivative(x[i], n0, p, knots_x, tol, bx, dbx, lft, rgt)
+        if sx < 0:
+            for j in range(ny):
+                out[i, j] = np.nan
+            continue
+        s_a = np.zeros(ny)
+        s_d = np.zeros(ny)
+        s_ax = np.zeros(ny)
+        s_dx = np.zeros(ny)
+        s_ay = np.zeros(ny)
+        s_dy = np.zeros(ny)
+        for k in range(p + 1):
+            a = sx - p + k
+            u = bx[k]
+            du = dbx[k]
+            for j in range(ny):
+                s_a[j] += u * t_a[a, j]
+                s_d[j] += u * t_d[a, j]
+                s_ax[j] += du * t_a[a, j]
+                s_dx[j] += du * t_d[a, j]
+                s_ay[j] += u * t_ay[a, j]
+                s_dy[j] += u * t_dy[a, j]
+        for j in range(ny):
+            s = s_a[j] / s_d[j]
+            gx = (s_ax[j] - s * s_dx[j]) / s_d[j]
+            gy = (s_ay[j] - s * s_dy[j]) / s_d[j]
+            out[i, j] = math.sqrt(gx * gx + gy * gy)
+    return out
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def cost_cells(slope_deg, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
+               lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost, free_state,
+               unknown_state):
+    """The cost formula of docs/obstacles.md on every cell, before inflation.
+
+    ``slope_deg`` (float64, NaN outside the surface) is atan |grad S| in degrees (the
+    arctangent is taken outside, vectorised, on :func:`gradient_norm_grid`); step =
+    max(0, highest), roughness = RMS (NaN where the cell has no point). Returns float32
+    ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit, step over
+    the lethal step, or occupied) and uint8 ``state`` (``free_state`` where the cell has a
+    point, else ``unknown_state``). Decisions are taken in float64. Rows are split over
+    threads; every cell is computed alone, so the result does not depend on the thread count.
+    """
+    nx = slope_deg.shape[0]
+    ny = slope_deg.shape[1]
     slope = np.empty((nx, ny), np.float32)
     step = np.empty((nx, ny), np.float32)
     rough = np.empty((nx, ny), np.float32)
@@ -210,33 +287,15 @@ def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, hig
     lethal = np.empty((nx, ny), np.bool_)
     state = np.empty((nx, ny), np.uint8)
     total = w_slope + w_step + w_rough
-    to_deg = 180.0 / math.pi
-    span_y, by, dby = _bs.basis_first_derivative_table(y, n1, p, knots_y, tol)
-    rq = weights * control
     for i in numba.prange(nx):
-        a_row = np.empty(n1)
-        d_row = np.empty(n1)
-        ax_row = np.empty(n1)
-        dx_row = np.empty(n1)
-        bx = np.empty(p + 1)
-        dbx = np.empty(p + 1)
-        lft = np.empty(p + 1)
-        rgt = np.empty(p + 1)
-        sx = _bs.clamped_basis_first_derivative(x[i], n0, p, knots_x, tol, bx, dbx, lft, rgt)
-        row_inside = sx >= 0
-        if row_inside:
-            _bs.contract_row(sx, p, bx, dbx, weights, rq, a_row, d_row, ax_row, dx_row)
         for j in range(ny):
-            sy = span_y[j]
-            if row_inside and sy >= 0:
-                _, gx, gy = _bs.row_node_value(sy, p, by, dby, j, a_row, d_row, ax_row, dx_row)
-                sl = math.atan(math.sqrt(gx * gx + gy * gy)) * to_deg
-                slope_term = (sl / max_slope_deg) ** 2
-                is_lethal = sl > max_slope_deg
-            else:
-                sl = np.nan
+            sl = slope_deg[i, j]
+            if math.isnan(sl):
                 slope_term = 1.0
                 is_lethal = False
+            else:
+                slope_term = (sl / max_slope_deg) ** 2
+                is_lethal = sl > max_slope_deg
             slope[i, j] = sl
             known = count[i, j] > 0
             if known:
@@ -265,29 +324,87 @@ def cost_cells(x, y, knots_x, knots_y, degree, control, weights, tol, count, hig
     return slope, step, rough, cost, lethal, state
 
 
-@numba.njit(cache=True)
-def inflate(cost, state, lethal, distance, inscribed_radius, circumscribed_radius,
+@numba.njit(cache=True, parallel=True)
+def bounded_squared_distance(lethal, reach):
+    """Squared distance, in cells, from every cell to the nearest ``lethal`` cell: exact where
+    it is at most ``reach``², ``reach``² + 1 elsewhere (int32).
+
+    The separable exact transform (Meijster et al. 2000; Felzenszwalb & Huttenlocher 2012)
+    cut off at ``reach``: per row, the squared distance along the row to the row's nearest
+    lethal cell (``reach``² + 1 beyond ``reach`` cells); then per cell, the least a² + that
+    value over the rows at most ``reach`` away, skipping rows without a lethal cell. A lethal
+    cell within ``reach`` of a cell lies within ``reach`` rows and columns of it, so the
+    result is exact up to ``reach``²; larger values are only upper bounds and are replaced by
+    ``reach``² + 1. Rows are split over threads.
+    """
+    nx = lethal.shape[0]
+    ny = lethal.shape[1]
+    far = reach * reach + 1
+    along = np.empty((nx, ny), np.int32)
+    row_lethal = np.zeros(nx, np.bool_)
+    for i in numba.prange(nx):
+        last = -(reach + 1)
+        for j in range(ny):
+            if lethal[i, j]:
+                last = j
+                row_lethal[i] = True
+            along[i, j] = j - last
+        last = ny + reach + 1
+        for j in range(ny - 1, -1, -1):
+            if lethal[i, j]:
+                last = j
+            b = min(along[i, j], last - j)
+            along[i, j] = b * b if b <= reach else far
+    out = np.empty((nx, ny), np.int32)
+    for i in numba.prange(nx):
+        for j in range(ny):
+            out[i, j] = far
+        row = np.int64(i)  # the prange index may be unsigned: -i would wrap
+        for a in range(max(-reach, -row), min(reach, nx - 1 - row) + 1):
+            if row_lethal[i + a]:
+                a2 = a * a
+                for j in range(ny):
+                    out[i, j] = min(out[i, j], a2 + along[i + a, j])
+        for j in range(ny):
+            out[i, j] = min(out[i, j], far)
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radius,
             inflation_scale, inscribed_state, lethal_state):
-    """Inflation by the footprint, in place: cells within ``inscribed_radius`` of a lethal cell
-    (``distance``, m) become INSCRIBED, out to ``circumscribed_radius`` the cost is at least
+    """Inflation by the footprint, in place: cells within ``inscribed_radius`` (m) of a lethal
+    cell become INSCRIBED, out to ``circumscribed_radius`` the cost is at least
     0.99 exp(-(d - r_in) / inflation_scale); lethal cells LETHAL; every other cost capped at
-    0.99 and INSCRIBED/LETHAL cells cost 1."""
+    0.99 and INSCRIBED/LETHAL cells cost 1.
+
+    d is the exact Euclidean distance between cell centres, from
+    :func:`bounded_squared_distance` out to the circumscribed radius plus one cell, as
+    float32(sqrt(d²)) * float32(cell_size) (OpenCV's exact ``distanceTransform`` scaled by the
+    cell size gives the same to within one float32 unit). Rows are split over threads.
+    """
     nx = cost.shape[0]
     ny = cost.shape[1]
-    for i in range(nx):
+    reach = int(math.ceil(circumscribed_radius / cell_size)) + 1
+    far = reach * reach + 1
+    d2 = bounded_squared_distance(lethal, reach)
+    step = np.float32(cell_size)
+    for i in numba.prange(nx):
         for j in range(ny):
             if lethal[i, j]:
                 state[i, j] = lethal_state
                 cost[i, j] = 1.0
                 continue
-            d = distance[i, j]
-            if d <= inscribed_radius:
-                state[i, j] = inscribed_state
-                cost[i, j] = 1.0
-                continue
             c = float(cost[i, j])
-            if d <= circumscribed_radius:
-                c = max(c, 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale))
+            k = d2[i, j]
+            if k < far:
+                d = float(np.float32(np.float32(math.sqrt(k)) * step))
+                if d <= inscribed_radius:
+                    state[i, j] = inscribed_state
+                    cost[i, j] = 1.0
+                    continue
+                if d <= circumscribed_radius:
+                    c = max(c, 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale))
             cost[i, j] = min(c, 0.99)
 
 
