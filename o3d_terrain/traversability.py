@@ -485,13 +485,12 @@ def traversability_cost(surface, cloud: Any = None, *,
 
     # the cost formula, with the slope from the surface's analytic derivatives
     x0, y0, _ = surface.origin
-    slope_deg = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
+    slope_rad = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
                                       surface.degree, surface.control_points, surface.weights,
                                       1e-9)
-    np.arctan(slope_deg, out=slope_deg)  # vectorised, unlike a per-cell atan in the kernel
-    np.multiply(slope_deg, 180.0 / math.pi, out=slope_deg)
+    np.arctan(slope_rad, out=slope_rad)  # vectorised, unlike a per-cell atan in a kernel
     slope, step, rough, cost, lethal, state = _k.cost_cells(
-        slope_deg, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
+        slope_rad, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
         profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE, UNKNOWN)
 
     # inflation by the footprint

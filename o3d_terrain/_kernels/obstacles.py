@@ -265,12 +265,12 @@ def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def cost_cells(slope_deg, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
+def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
                lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost, free_state,
                unknown_state):
     """The cost formula of docs/obstacles.md on every cell, before inflation.
 
-    ``slope_deg`` (float64, NaN outside the surface) is atan |grad S| in degrees (the
+    ``slope_rad`` (float64, NaN outside the surface) is atan |grad S| in radians (the
     arctangent is taken outside, vectorised, on :func:`gradient_norm_grid`); step =
     max(0, highest), roughness = RMS (NaN where the cell has no point). Returns float32
     ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit, step over
@@ -278,8 +278,8 @@ def cost_cells(slope_deg, count, highest, rough_n, rough_sum2, occupied, max_slo
     point, else ``unknown_state``). Decisions are taken in float64. Rows are split over
     threads; every cell is computed alone, so the result does not depend on the thread count.
     """
-    nx = slope_deg.shape[0]
-    ny = slope_deg.shape[1]
+    nx = slope_rad.shape[0]
+    ny = slope_rad.shape[1]
     slope = np.empty((nx, ny), np.float32)
     step = np.empty((nx, ny), np.float32)
     rough = np.empty((nx, ny), np.float32)
@@ -287,9 +287,10 @@ def cost_cells(slope_deg, count, highest, rough_n, rough_sum2, occupied, max_slo
     lethal = np.empty((nx, ny), np.bool_)
     state = np.empty((nx, ny), np.uint8)
     total = w_slope + w_step + w_rough
+    to_deg = 180.0 / math.pi
     for i in numba.prange(nx):
         for j in range(ny):
-            sl = slope_deg[i, j]
+            sl = slope_rad[i, j] * to_deg
             if math.isnan(sl):
                 slope_term = 1.0
                 is_lethal = False
@@ -388,24 +389,29 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
     reach = int(math.ceil(circumscribed_radius / cell_size)) + 1
     far = reach * reach + 1
     d2 = bounded_squared_distance(lethal, reach)
+    # the distance takes at most reach² + 1 values: the least cost for each, once
+    # (-1 = inscribed, 0 = beyond the circumscribed radius)
+    least = np.zeros(far)
     step = np.float32(cell_size)
+    for k in range(far):
+        d = float(np.float32(np.float32(math.sqrt(k)) * step))
+        if d <= inscribed_radius:
+            least[k] = -1.0
+        elif d <= circumscribed_radius:
+            least[k] = 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale)
     for i in numba.prange(nx):
         for j in range(ny):
             if lethal[i, j]:
                 state[i, j] = lethal_state
                 cost[i, j] = 1.0
                 continue
-            c = float(cost[i, j])
             k = d2[i, j]
-            if k < far:
-                d = float(np.float32(np.float32(math.sqrt(k)) * step))
-                if d <= inscribed_radius:
-                    state[i, j] = inscribed_state
-                    cost[i, j] = 1.0
-                    continue
-                if d <= circumscribed_radius:
-                    c = max(c, 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale))
-            cost[i, j] = min(c, 0.99)
+            floor = least[k] if k < far else 0.0
+            if floor < 0:
+                state[i, j] = inscribed_state
+                cost[i, j] = 1.0
+            else:
+                cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
 
 
 @numba.njit(cache=True)
