@@ -326,18 +326,11 @@ def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slo
 
 
 @numba.njit(cache=True, parallel=True)
-def bounded_squared_distance(lethal, reach):
-    """Squared distance, in cells, from every cell to the nearest ``lethal`` cell: exact where
-    it is at most ``reach``², ``reach``² + 1 elsewhere (int32).
-
-    The separable exact transform (Meijster et al. 2000; Felzenszwalb & Huttenlocher 2012)
-    cut off at ``reach``: per row, the squared distance along the row to the row's nearest
-    lethal cell (``reach``² + 1 beyond ``reach`` cells); then per cell, the least a² + that
-    value over the rows at most ``reach`` away, skipping rows without a lethal cell. A lethal
-    cell within ``reach`` of a cell lies within ``reach`` rows and columns of it, so the
-    result is exact up to ``reach``²; larger values are only upper bounds and are replaced by
-    ``reach``² + 1. Rows are split over threads.
-    """
+def row_squared_distance(lethal, reach):
+    """Per row, the squared distance (in cells) along the row to the row's nearest ``lethal``
+    cell, ``reach``² + 1 beyond ``reach`` cells (int32), and whether each row has a lethal
+    cell: the first pass of the separable exact distance transform (Meijster et al. 2000;
+    Felzenszwalb & Huttenlocher 2012) cut off at ``reach``. Rows are split over threads."""
     nx = lethal.shape[0]
     ny = lethal.shape[1]
     far = reach * reach + 1
@@ -356,19 +349,7 @@ def bounded_squared_distance(lethal, reach):
                 last = j
             b = min(along[i, j], last - j)
             along[i, j] = b * b if b <= reach else far
-    out = np.empty((nx, ny), np.int32)
-    for i in numba.prange(nx):
-        for j in range(ny):
-            out[i, j] = far
-        row = np.int64(i)  # the prange index may be unsigned: -i would wrap
-        for a in range(max(-reach, -row), min(reach, nx - 1 - row) + 1):
-            if row_lethal[i + a]:
-                a2 = a * a
-                for j in range(ny):
-                    out[i, j] = min(out[i, j], a2 + along[i + a, j])
-        for j in range(ny):
-            out[i, j] = min(out[i, j], far)
-    return out
+    return along, row_lethal
 
 
 @numba.njit(cache=True, parallel=True)
@@ -379,19 +360,23 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
     0.99 exp(-(d - r_in) / inflation_scale); lethal cells LETHAL; every other cost capped at
     0.99 and INSCRIBED/LETHAL cells cost 1.
 
-    d is the exact Euclidean distance between cell centres, from
-    :func:`bounded_squared_distance` out to the circumscribed radius plus one cell, as
-    float32(sqrt(d²)) * float32(cell_size) (OpenCV's exact ``distanceTransform`` scaled by the
-    cell size gives the same to within one float32 unit). Rows are split over threads.
+    d is the exact Euclidean distance between cell centres, as float32(sqrt(d²)) *
+    float32(cell_size) (OpenCV's exact ``distanceTransform`` scaled by the cell size gives the
+    same to within one float32 unit), computed only out to ``reach`` = the circumscribed
+    radius plus one cell: d² is the least a² + :func:`row_squared_distance` over the rows at
+    most ``reach`` away (|a| <= reach), skipping rows without a lethal cell. A lethal cell
+    within ``reach`` of a cell lies within ``reach`` rows and columns of it, so d² is exact
+    up to ``reach``²; larger values are only upper bounds and count as beyond the
+    circumscribed radius. d² takes at most ``reach``² + 1 values, so the least cost of each
+    is tabulated once. Rows are split over threads.
     """
     nx = cost.shape[0]
     ny = cost.shape[1]
     reach = int(math.ceil(circumscribed_radius / cell_size)) + 1
     far = reach * reach + 1
-    d2 = bounded_squared_distance(lethal, reach)
-    # the distance takes at most reach² + 1 values: the least cost for each, once
-    # (-1 = inscribed, 0 = beyond the circumscribed radius)
-    least = np.zeros(far)
+    along, row_lethal = row_squared_distance(lethal, reach)
+    # the least cost for each d² (-1 = inscribed, 0 = beyond the circumscribed radius)
+    least = np.zeros(far + 1)
     step = np.float32(cell_size)
     for k in range(far):
         d = float(np.float32(np.float32(math.sqrt(k)) * step))
@@ -399,19 +384,28 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
             least[k] = -1.0
         elif d <= circumscribed_radius:
             least[k] = 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale)
-    for i in numba.prange(nx):
-        for j in range(ny):
-            if lethal[i, j]:
-                state[i, j] = lethal_state
-                cost[i, j] = 1.0
-                continue
-            k = d2[i, j]
-            floor = least[k] if k < far else 0.0
-            if floor < 0:
-                state[i, j] = inscribed_state
-                cost[i, j] = 1.0
-            else:
-                cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
+    chunk = 16  # rows per task: one d² buffer per chunk
+    for c in numba.prange((nx + chunk - 1) // chunk):
+        d2 = np.empty(ny, np.int32)
+        first = np.int64(c) * chunk  # the prange index may be unsigned: -i would wrap
+        for i in range(first, min(first + chunk, nx)):
+            d2[:] = far
+            for a in range(max(-reach, -i), min(reach, nx - 1 - i) + 1):
+                if row_lethal[i + a]:
+                    a2 = a * a
+                    for j in range(ny):
+                        d2[j] = min(d2[j], a2 + along[i + a, j])
+            for j in range(ny):
+                if lethal[i, j]:
+                    state[i, j] = lethal_state
+                    cost[i, j] = 1.0
+                    continue
+                floor = least[min(d2[j], far)]
+                if floor < 0:
+                    state[i, j] = inscribed_state
+                    cost[i, j] = 1.0
+                else:
+                    cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
 
 
 @numba.njit(cache=True)
