@@ -271,15 +271,14 @@ def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int, ny: int) -> np.nda
     """Component id (0..K-1) of each point: 8-connected occupied cells."""
     import cv2
 
-    mask = np.zeros((nx, ny), np.uint8)
-    mask[ix, iy] = 1
+    mask = _k.occupancy_mask(ix, iy, nx, ny)
     if nx >= 32767 or ny >= 32767:  # OpenCV image sides are limited to 2^15
         from scipy import ndimage
 
         components, _ = ndimage.label(mask, structure=np.ones((3, 3)))
-        return components[ix, iy].astype(np.int64) - 1
-    _, components = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-    return components[ix, iy].astype(np.int64) - 1
+    else:
+        _, components = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    return _k.labels_at(components, ix, iy, -1)
 
 
 def _dbscan_components(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:

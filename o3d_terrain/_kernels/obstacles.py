@@ -108,6 +108,24 @@ def group_by(ids, n_groups):
 
 
 @numba.njit(cache=True)
+def occupancy_mask(ix, iy, nx, ny):
+    """(nx, ny) uint8 mask, 1 at every cell (ix[k], iy[k]) (all inside the grid)."""
+    mask = np.zeros((nx, ny), np.uint8)
+    for k in range(ix.shape[0]):
+        mask[ix[k], iy[k]] = 1
+    return mask
+
+
+@numba.njit(cache=True)
+def labels_at(labels, ix, iy, offset):
+    """labels[ix[k], iy[k]] + offset for every k, as int64."""
+    out = np.empty(ix.shape[0], np.int64)
+    for k in range(ix.shape[0]):
+        out[k] = labels[ix[k], iy[k]] + offset
+    return out
+
+
+@numba.njit(cache=True)
 def mark_points(ix, iy, indices, occupied):
     """occupied[ix[k], iy[k]] = True for every k in ``indices`` with a cell (ix[k] >= 0)."""
     for t in range(indices.shape[0]):
