@@ -111,7 +111,10 @@ def _read_kitti_bin(path: Path) -> o3d.t.geometry.PointCloud:
     return cloud_from_numpy(data[:, :3].astype(np.float64), intensities=data[:, 3])
 
 
-def _read_las(path: Path) -> o3d.t.geometry.PointCloud:
+def open_las(path: str | os.PathLike):
+    """A ``laspy.LasData`` of a LAS/LAZ file, with clear errors for a missing laspy or LAZ
+    backend, a corrupt file and a file without points."""
+    path = Path(path)
     try:
         import laspy
     except ImportError as exc:
@@ -126,10 +129,17 @@ def _read_las(path: Path) -> o3d.t.geometry.PointCloud:
                 f"{path}: reading LAZ needs a laspy backend; install the extra: "
                 "pip install 'o3d_terrain[las]' (laspy[lazrs])"
             ) from exc
-        raise
-    positions = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
-    if len(positions) == 0:
+        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+    except Exception as exc:  # laspy raises many types on corrupt or unsupported files
+        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+    if len(las.points) == 0:
         raise InputError(f"{path}: contains no points")
+    return las
+
+
+def _read_las(path: Path) -> o3d.t.geometry.PointCloud:
+    las = open_las(path)
+    positions = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
     attributes: dict[str, np.ndarray] = {
         "classification": np.asarray(las.classification, dtype=np.int32),
         "intensities": np.asarray(las.intensity, dtype=np.float32),

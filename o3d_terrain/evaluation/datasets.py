@@ -29,6 +29,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..io import open_las
 
 SEMANTIC_KITTI_GROUND = (40, 44, 48, 49, 60, 72)
 SEMANTIC_KITTI_IGNORED = (0, 1)
@@ -192,18 +193,7 @@ def las_linear_unit(las) -> tuple[float, str]:
 def read_las_frame(path: str | os.PathLike) -> LabelledFrame:
     """A LAS/LAZ tile with its ASPRS classes; feet are converted to metres."""
     path = Path(path)
-    try:
-        import laspy
-    except ImportError as exc:
-        raise InputError(
-            f"{path}: reading LAS/LAZ needs laspy; install the extra: pip install 'o3d_terrain[las]'"
-        ) from exc
-    try:
-        las = laspy.read(str(path))
-    except Exception as exc:  # laspy raises many types on corrupt or unsupported files
-        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
-    if len(las.points) == 0:
-        raise InputError(f"{path}: contains no points")
+    las = open_las(path)
     factor, unit_source = las_linear_unit(las)
     positions = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
     positions = positions.astype(np.float64) * factor
