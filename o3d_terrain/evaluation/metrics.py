@@ -129,21 +129,25 @@ def segmentation_counts(
     )
 
 
-def height_rmse(estimated: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None) -> float:
-    """Root-mean-square of ``estimated - truth`` over ``valid`` (and finite) entries."""
+def _paired_errors(estimated, truth, valid, shape_message: str) -> np.ndarray:
+    """``estimated - truth`` where both are finite and ``valid``; shapes must match."""
     estimated = np.asarray(estimated, dtype=np.float64)
     truth = np.asarray(truth, dtype=np.float64)
     if estimated.shape != truth.shape:
-        raise InputError(
-            f"height RMSE: estimated heights have shape {estimated.shape} and the truth "
-            f"{truth.shape}; they must match (evaluate both at the same points)"
-        )
+        raise InputError(shape_message.format(estimated.shape, truth.shape))
     keep = np.isfinite(estimated) & np.isfinite(truth)
     if valid is not None:
         keep &= np.asarray(valid, dtype=bool)
-    if not keep.any():
+    return estimated[keep] - truth[keep]
+
+
+def height_rmse(estimated: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """Root-mean-square of ``estimated - truth`` over ``valid`` (and finite) entries."""
+    error = _paired_errors(estimated, truth, valid,
+                           "height RMSE: estimated heights have shape {} and the truth {}; "
+                           "they must match (evaluate both at the same points)")
+    if error.size == 0:
         return float("nan")
-    error = estimated[keep] - truth[keep]
     return float(np.sqrt(np.mean(error * error)))
 
 
@@ -156,20 +160,12 @@ def slope_error_deg(
     estimated_deg: np.ndarray, truth_deg: np.ndarray, valid: np.ndarray | None = None
 ) -> dict[str, float]:
     """Slope-angle error statistics in degrees: mean absolute, RMSE, 95th percentile, max."""
-    estimated_deg = np.asarray(estimated_deg, dtype=np.float64)
-    truth_deg = np.asarray(truth_deg, dtype=np.float64)
-    if estimated_deg.shape != truth_deg.shape:
-        raise InputError(
-            f"slope error: estimated slopes have shape {estimated_deg.shape} and the truth "
-            f"{truth_deg.shape}; they must match"
-        )
-    keep = np.isfinite(estimated_deg) & np.isfinite(truth_deg)
-    if valid is not None:
-        keep &= np.asarray(valid, dtype=bool)
-    if not keep.any():
+    error = np.abs(_paired_errors(
+        estimated_deg, truth_deg, valid,
+        "slope error: estimated slopes have shape {} and the truth {}; they must match"))
+    if error.size == 0:
         nan = float("nan")
         return {"mean_abs": nan, "rmse": nan, "p95_abs": nan, "max_abs": nan}
-    error = np.abs(estimated_deg[keep] - truth_deg[keep])
     return {
         "mean_abs": float(error.mean()),
         "rmse": float(np.sqrt(np.mean(error * error))),

@@ -76,6 +76,15 @@ def _check_positions(positions: np.ndarray, who: str) -> np.ndarray:
     return positions
 
 
+def _finite_points(positions: np.ndarray, who: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """(number of points, indices of the finite ones, those points shifted to a local origin):
+    the peers get finite points only, near zero so float32 internals keep their precision."""
+    positions = _check_positions(positions, who)
+    finite = np.flatnonzero(np.isfinite(positions).all(axis=1))
+    points = positions[finite]
+    return len(positions), finite, points - points.min(axis=0)
+
+
 def _indices_to_mask(indices: np.ndarray, n: int) -> np.ndarray:
     mask = np.zeros(n, dtype=bool)
     mask[np.asarray(indices, dtype=np.int64)] = True
@@ -152,11 +161,7 @@ class ClothSimulationFilter:
     def segment(self, positions: np.ndarray) -> np.ndarray:
         import CSF
 
-        positions = _check_positions(positions, self.name)
-        n = len(positions)
-        finite = np.flatnonzero(np.isfinite(positions).all(axis=1))
-        points = positions[finite]
-        points = points - points.min(axis=0)
+        n, finite, points = _finite_points(positions, self.name)
         csf = CSF.CSF()  # defaults: cloth_resolution 1.0, class_threshold 0.5, rigidness 3
         ground, non_ground = CSF.VecInt(), CSF.VecInt()
         with quiet_stdout():
@@ -176,11 +181,7 @@ class SimpleMorphologicalFilter:
     def segment(self, positions: np.ndarray) -> np.ndarray:
         import pysmrf
 
-        positions = _check_positions(positions, self.name)
-        n = len(positions)
-        finite = np.flatnonzero(np.isfinite(positions).all(axis=1))
-        points = positions[finite]
-        points = points - points.min(axis=0)
+        n, finite, points = _finite_points(positions, self.name)
         with quiet_stdout(), warnings.catch_warnings():
             warnings.simplefilter("ignore", PendingDeprecationWarning)  # rasterio/affine inside
             result = pysmrf.classify(points[:, 0], points[:, 1], points[:, 2], workers=1)
@@ -202,11 +203,7 @@ class RansacPlane:
     def segment(self, positions: np.ndarray) -> np.ndarray:
         import open3d as o3d
 
-        positions = _check_positions(positions, self.name)
-        n = len(positions)
-        finite = np.flatnonzero(np.isfinite(positions).all(axis=1))
-        points = positions[finite]
-        points = points - points.min(axis=0)
+        n, finite, points = _finite_points(positions, self.name)
         if len(points) < 3:
             return np.zeros(n, dtype=bool)
         o3d.utility.random.seed(self.seed)
