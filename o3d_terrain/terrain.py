@@ -26,6 +26,7 @@ from .errors import InputError
 from ._kernels import ground as _ground
 from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
+from .ground_layer import default_layer, ground_layer_samples
 from .spline import GridBasis, TerrainSurface
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
@@ -100,6 +101,8 @@ def fit_grid_detailed(
     max_slope_deg: float = 45.0,
     gap_slope_deg: float = 20.0,
     max_obstacle_width: float = 40.0,
+    positions: np.ndarray | None = None,
+    ground_layer: bool = True,
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -124,6 +127,10 @@ def fit_grid_detailed(
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
         the connectivity, so a roof narrower than this never seeds it.
+    positions: (robust) the points the grid was made from; with ``ground_layer`` they give
+        the cells that hold terrain under an object their ground layer as sample
+        (:func:`o3d_terrain.ground_layer.ground_layer_samples`).
+    ground_layer: (robust) use the ground-layer samples when ``positions`` are given.
     """
     problems = []
     if method not in METHODS:
@@ -165,7 +172,12 @@ def fit_grid_detailed(
     xl = grid.x_centers - x0
     yl = grid.y_centers - y0
     region_local = (x_min - x0, x_max - x0, y_min - y0, y_max - y0)
-    z = np.where(valid, grid.z - z0, 0.0)
+    samples = grid.z
+    if positions is not None and ground_layer and method == "robust":
+        layer = default_layer(grid.cell_size, noise_floor=noise_floor,
+                              max_slope_deg=max_slope_deg)
+        samples, _ = ground_layer_samples(grid, positions, layer=layer)
+    z = np.where(valid, samples - z0, 0.0)
     if method == "paper":
         fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
                          max_iterations)

@@ -59,6 +59,12 @@ class RationalBSplineTerrain(Stage):
     max_obstacle_width: float = option(40.0, unit="m", rule=POSITIVE,
                                        help="terrain_prior: widest obstacle, sets the seed "
                                             "search window")
+    ground_layer: bool = option(
+        True,
+        help="robust method: a cell whose points form a layer just above its lowest point "
+             "under an object (canopy, wall) gives the fit the layer's height instead of "
+             "eq. 1's lifted sample (o3d_terrain.ground_layer)",
+    )
 
     def check_options(self) -> list[str]:
         if self.control_points is not None and min(self.control_points) < self.degree + 1:
@@ -73,6 +79,8 @@ class RationalBSplineTerrain(Stage):
             rational=self.rational, terrain_prior=self.terrain_prior,
             max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
             max_obstacle_width=self.max_obstacle_width,
+            positions=frame.positions if self.ground_layer else None,
+            ground_layer=self.ground_layer,
         )
         grid = frame.product("grid")
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
