@@ -37,6 +37,11 @@ METHODS = ("robust", "paper")
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
 
+#: beyond AUTO_MAX_CONTROL_POINTS (extents over ~170 m: airborne tiles), the automatic layout
+#: keeps control points at most this far apart (m), up to AUTO_LIMIT_CONTROL_POINTS per axis
+AUTO_MAX_SPACING = 6.0
+AUTO_LIMIT_CONTROL_POINTS = 96
+
 #: fewest points for which eq. 1 can tell a compact cell from one holding a vertical face
 #: (with one or two points Z equals the lowest point whatever the points are)
 MIN_COMPACT_POINTS = 3
@@ -69,14 +74,17 @@ def default_control_points(grid: HeightGrid, degree: int = 3,
                            spacing: float | None = None) -> tuple[int, int]:
     """A control-point layout from the grid's extent: about one control point every
     ``spacing`` metres (default: 2 cells, at least 1 m), at most
-    :data:`AUTO_MAX_CONTROL_POINTS` per axis and at least ``degree + 1``."""
+    :data:`AUTO_MAX_CONTROL_POINTS` per axis unless that leaves them more than
+    :data:`AUTO_MAX_SPACING` apart (then one every AUTO_MAX_SPACING metres, at most
+    :data:`AUTO_LIMIT_CONTROL_POINTS`), and at least ``degree + 1``."""
     if spacing is None:
         spacing = max(2.0 * grid.cell_size, 1.0)
     x_min, x_max, y_min, y_max = grid.region
     out = []
     for extent, cells in ((x_max - x_min, grid.nx), (y_max - y_min, grid.ny)):
         n = int(round(extent / spacing)) + degree
-        n = min(n, AUTO_MAX_CONTROL_POINTS, cells + degree - 1)
+        most = max(AUTO_MAX_CONTROL_POINTS, int(math.ceil(extent / AUTO_MAX_SPACING)) + degree)
+        n = min(n, most, AUTO_LIMIT_CONTROL_POINTS, cells + degree - 1)
         out.append(max(n, degree + 1))
     return out[0], out[1]
 

@@ -1,5 +1,5 @@
-"""Ground-layer samples (cells holding terrain under an object), checked against the exact
-terrain of small synthetic clouds."""
+"""Ground-layer samples (cells holding terrain under an object) and the layout of wide tiles,
+checked against the exact terrain of small synthetic clouds."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ from o3d_terrain import InputError
 from o3d_terrain.api import fit_terrain, segment_terrain
 from o3d_terrain.grid import MEASURED, HeightGrid, quantize_points
 from o3d_terrain.ground_layer import default_layer, ground_layer_samples
-from o3d_terrain.terrain import fit_grid
+from o3d_terrain.terrain import AUTO_MAX_SPACING, default_control_points, fit_grid
 
 
 def hills(x, y):
@@ -101,3 +101,15 @@ def test_ground_layer_checks_its_inputs(rng):
     with pytest.raises(InputError, match="lowest"):
         ground_layer_samples(HeightGrid(0.0, 0.0, 0.5, grid.z, grid.count, grid.state), cloud)
     assert default_layer(0.5) == pytest.approx(0.09 + 0.15)
+
+
+def test_wide_tiles_keep_the_control_spacing_bounded():
+    def flat_grid(cells):
+        return HeightGrid(0.0, 0.0, 0.5, np.zeros((cells, cells)),
+                          np.ones((cells, cells), np.int64),
+                          np.full((cells, cells), MEASURED, np.uint8))
+
+    assert default_control_points(flat_grid(320)) == (32, 32)  # 160 m: a vehicle lidar frame
+    n = default_control_points(flat_grid(800))  # 400 m: an airborne tile
+    assert n[0] == n[1] > 32 and 400.0 / (n[0] - 3) <= AUTO_MAX_SPACING
+    assert default_control_points(flat_grid(4000)) == (96, 96)  # 2 km: the hard limit

@@ -36,7 +36,8 @@ class RationalBSplineTerrain(Stage):
         None, kind=int, length=2, broadcast=True, nullable=True, rule=Range(2, 1000),
         check=_check_control_points,
         help="control points per axis at the end of the growth; null = about one every "
-             "2 cells (at least 1 m), at most 32 per axis",
+             "2 cells (at least 1 m), at most 32 per axis, or one every 6 m (at most 96) "
+             "where 32 would be farther apart",
     )
     degree: int = option(3, rule=Range(1, 5), help="polynomial degree of the B-spline basis")
     method: str = option("robust", choices=METHODS,
