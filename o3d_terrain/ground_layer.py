@@ -11,7 +11,11 @@ cell's terrain sample becomes the mean height of the layer.
 Why the two support conditions: a single low point (multipath, a low outlier) has no layer of
 its own (one point), so eq. 1 keeps rejecting it; and in a cell of pure range noise (stereo
 at range) the lowest point is the tail of the noise, with only a few per cent of the points
-near it, so the sample stays eq. 1 and is not biased low. Measured in docs/algorithm.md.
+near it, so the sample stays eq. 1 and is not biased low. In simulated Gaussian cells
+(layer 0.24 m) no cell is a candidate below σ ≈ 0.15 m; with σ 0.3-0.5 m and 10-20 points,
+5-17 % of them still pass (two or three points make 20 %), and their sample drops by about
+one σ, inside the robust fit's band below the surface; the synthetic stereo scenes change by
+at most 0.001 m RMSE. Measured in docs/algorithm.md.
 
 The layer thickness defaults to the tolerance of the terrain prior: 3 x noise_floor plus the
 height spread of a max_slope_deg plane across 0.3 of a cell (0.24 m at 0.5 m cells, 45 deg),
