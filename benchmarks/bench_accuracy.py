@@ -46,7 +46,7 @@ def fit_terrain(positions: np.ndarray, method: str = "robust"):
     extent), with FIT_OPTIONS passed to the fit."""
     finite = positions[np.isfinite(positions).all(axis=1)]
     grid = quantize_points(finite, cell_size=0.5, region=region_of(finite))
-    return fit_grid_detailed(grid, method=method, **FIT_OPTIONS).surface
+    return fit_grid_detailed(grid, method=method, positions=finite, **FIT_OPTIONS).surface
 
 
 def segment_terrain(positions: np.ndarray, method: str = "robust"):

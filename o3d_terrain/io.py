@@ -14,11 +14,21 @@ extension                 what is read
                           ``return_numbers``, ``number_of_returns``, ``colors`` when present
                           (needs the ``las`` extra: ``pip install 'o3d_terrain[las]'``)
 ========================  =====================================================================
+
+Units: every metric option of the library (cell sizes, thresholds, widths) is in metres, so
+``read_cloud`` converts LAS/LAZ coordinates to metres by default (``units="metres"``), using
+the linear units the file declares (:func:`las_units`: GeoTIFF ProjLinearUnitsGeoKey and
+VerticalUnitsGeoKey, else the last UNIT of a WKT coordinate system). A US-feet tile read in its
+file units would get 0.5 ft cells and 0.5 ft thresholds (3.28 times too small) without any
+error. ``units="file"`` keeps the file's coordinates (e.g. to write results back into the
+file's coordinate system). Other formats carry no unit and are read as they are.
 """
 
 from __future__ import annotations
 
 import os
+import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +38,12 @@ import open3d as o3d
 
 from .errors import InputError
 from .frame import Frame, as_frame, cloud_from_numpy
+
+#: the ``units`` choices of :func:`read_cloud`
+UNITS = ("metres", "file")
+
+#: EPSG linear unit codes (GeoTIFF ProjLinearUnitsGeoKey, VerticalUnitsGeoKey) in metres
+EPSG_LINEAR_UNITS = {9001: 1.0, 9002: 0.3048, 9003: 1200.0 / 3937.0}
 
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".npy", ".bin", ".las", ".laz")
 WRITE_EXTENSIONS = (".ply", ".pcd", ".npz", ".xyz", ".txt")
@@ -45,8 +61,16 @@ def _check_readable(path: Path) -> None:
         raise InputError(f"{path}: the file is empty")
 
 
-def read_cloud(path: str | os.PathLike) -> o3d.t.geometry.PointCloud:
-    """Read a point cloud file (see the module docstring for the formats)."""
+def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geometry.PointCloud:
+    """Read a point cloud file (see the module docstring for the formats).
+
+    units: "metres" (default) converts LAS/LAZ coordinates from the linear units the file
+    declares (:func:`las_units`; feet tiles are scaled by 0.3048) so that metric options mean
+    metres; "file" keeps the file's coordinates. Formats without unit information are read as
+    they are either way.
+    """
+    if units not in UNITS:
+        raise InputError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in CLOUD_EXTENSIONS:
@@ -63,7 +87,7 @@ def read_cloud(path: str | os.PathLike) -> o3d.t.geometry.PointCloud:
             return _from_array(np.load(path, allow_pickle=False), path)
         if suffix == ".bin":
             return _read_kitti_bin(path)
-        return _read_las(path)
+        return _read_las(path, to_metres=units == "metres")
     except InputError:
         raise
     except Exception as exc:  # a reader library failed on a corrupt file
@@ -137,9 +161,62 @@ def open_las(path: str | os.PathLike):
     return las
 
 
-def _read_las(path: Path) -> o3d.t.geometry.PointCloud:
+@dataclass(frozen=True)
+class LasUnits:
+    """Metres per coordinate unit of a LAS/LAZ file, and where that was read."""
+
+    horizontal: float  # metres per x/y unit
+    vertical: float  # metres per z unit
+    source: str  # "GeoTIFF key EPSG:9002", "WKT unit 'US survey foot'" or "unknown"
+
+    @property
+    def is_metres(self) -> bool:
+        return self.horizontal == 1.0 and self.vertical == 1.0
+
+
+def las_units(las) -> LasUnits:
+    """The linear units of a ``laspy.LasData``: GeoTIFF ProjLinearUnitsGeoKey (3076) for x/y
+    and VerticalUnitsGeoKey (4099) for z (x/y's unit when absent), else the last UNIT of the
+    WKT coordinate system for all three. Metres with source "unknown" when the file declares
+    no unit (a CRS given only by its EPSG code is not looked up)."""
+    for vlr in las.header.vlrs:
+        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
+            keys = {key.id: key.value_offset for key in vlr.geo_keys}
+            code = keys.get(3076)
+            if code in EPSG_LINEAR_UNITS:
+                vertical = keys.get(4099, code)
+                factor = EPSG_LINEAR_UNITS[int(code)]
+                return LasUnits(factor, EPSG_LINEAR_UNITS.get(int(vertical), factor),
+                                f"GeoTIFF key EPSG:{int(code)}")
+    for vlr in las.header.vlrs:
+        if type(vlr).__name__ == "WktCoordinateSystemVlr":
+            text = vlr.string if isinstance(vlr.string, str) else str(vlr.string)
+            units = re.findall(r'UNIT\["([^"]+)",\s*([0-9.eE+-]+)', text)
+            if units:  # the last UNIT of a projected CRS is its linear unit
+                name, factor = units[-1]
+                try:
+                    value = float(factor)
+                except ValueError:
+                    continue
+                if 0.2 < value < 2.0:
+                    return LasUnits(value, value, f"WKT unit '{name}'")
+    return LasUnits(1.0, 1.0, "unknown")
+
+
+def las_positions(las, *, to_metres: bool = True) -> tuple[np.ndarray, LasUnits]:
+    """(N, 3) float64 positions of a ``laspy.LasData`` (in metres when ``to_metres``) and
+    the file's :class:`LasUnits`."""
+    units = las_units(las)
+    positions = np.column_stack([np.asarray(las.x), np.asarray(las.y),
+                                 np.asarray(las.z)]).astype(np.float64)
+    if to_metres and not units.is_metres:
+        positions *= np.array([units.horizontal, units.horizontal, units.vertical])
+    return positions, units
+
+
+def _read_las(path: Path, *, to_metres: bool = True) -> o3d.t.geometry.PointCloud:
     las = open_las(path)
-    positions = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+    positions, _ = las_positions(las, to_metres=to_metres)
     attributes: dict[str, np.ndarray] = {
         "classification": np.asarray(las.classification, dtype=np.int32),
         "intensities": np.asarray(las.intensity, dtype=np.float32),

@@ -26,6 +26,7 @@ from .errors import InputError
 from ._kernels import ground as _ground
 from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
+from .ground_layer import default_layer, ground_layer_samples
 from .spline import GridBasis, TerrainSurface
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
@@ -35,6 +36,11 @@ METHODS = ("robust", "paper")
 
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
+
+#: beyond AUTO_MAX_CONTROL_POINTS (extents over ~170 m: airborne tiles), the automatic layout
+#: keeps control points at most this far apart (m), up to AUTO_LIMIT_CONTROL_POINTS per axis
+AUTO_MAX_SPACING = 6.0
+AUTO_LIMIT_CONTROL_POINTS = 96
 
 #: fewest points for which eq. 1 can tell a compact cell from one holding a vertical face
 #: (with one or two points Z equals the lowest point whatever the points are)
@@ -68,14 +74,17 @@ def default_control_points(grid: HeightGrid, degree: int = 3,
                            spacing: float | None = None) -> tuple[int, int]:
     """A control-point layout from the grid's extent: about one control point every
     ``spacing`` metres (default: 2 cells, at least 1 m), at most
-    :data:`AUTO_MAX_CONTROL_POINTS` per axis and at least ``degree + 1``."""
+    :data:`AUTO_MAX_CONTROL_POINTS` per axis unless that leaves them more than
+    :data:`AUTO_MAX_SPACING` apart (then one every AUTO_MAX_SPACING metres, at most
+    :data:`AUTO_LIMIT_CONTROL_POINTS`), and at least ``degree + 1``."""
     if spacing is None:
         spacing = max(2.0 * grid.cell_size, 1.0)
     x_min, x_max, y_min, y_max = grid.region
     out = []
     for extent, cells in ((x_max - x_min, grid.nx), (y_max - y_min, grid.ny)):
         n = int(round(extent / spacing)) + degree
-        n = min(n, AUTO_MAX_CONTROL_POINTS, cells + degree - 1)
+        most = max(AUTO_MAX_CONTROL_POINTS, int(math.ceil(extent / AUTO_MAX_SPACING)) + degree)
+        n = min(n, most, AUTO_LIMIT_CONTROL_POINTS, cells + degree - 1)
         out.append(max(n, degree + 1))
     return out[0], out[1]
 
@@ -100,6 +109,8 @@ def fit_grid_detailed(
     max_slope_deg: float = 45.0,
     gap_slope_deg: float = 20.0,
     max_obstacle_width: float = 40.0,
+    positions: np.ndarray | None = None,
+    ground_layer: bool = True,
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -124,6 +135,10 @@ def fit_grid_detailed(
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
         the connectivity, so a roof narrower than this never seeds it.
+    positions: (robust) the points the grid was made from; with ``ground_layer`` they give
+        the cells that hold terrain under an object their ground layer as sample
+        (:func:`o3d_terrain.ground_layer.ground_layer_samples`).
+    ground_layer: (robust) use the ground-layer samples when ``positions`` are given.
     """
     problems = []
     if method not in METHODS:
@@ -165,7 +180,12 @@ def fit_grid_detailed(
     xl = grid.x_centers - x0
     yl = grid.y_centers - y0
     region_local = (x_min - x0, x_max - x0, y_min - y0, y_max - y0)
-    z = np.where(valid, grid.z - z0, 0.0)
+    samples = grid.z
+    if positions is not None and ground_layer and method == "robust":
+        layer = default_layer(grid.cell_size, noise_floor=noise_floor,
+                              max_slope_deg=max_slope_deg)
+        samples, _ = ground_layer_samples(grid, positions, layer=layer)
+    z = np.where(valid, samples - z0, 0.0)
     if method == "paper":
         fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
                          max_iterations)

@@ -73,3 +73,44 @@ def test_as_frame_accepts_all_cloud_kinds_and_never_modifies(rng):
         np.testing.assert_allclose(frame.positions, pts, atol=1e-6)
     assert "labels" not in tensor.point
     assert tensor.point.positions.dtype == o3d.core.float32
+
+
+def _feet_las(path, laspy):
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([1000.0, 2000.0, 0.0])
+    from laspy.vlrs.known import GeoKeyDirectoryVlr, GeoKeyEntryStruct
+
+    vlr = GeoKeyDirectoryVlr()
+    vlr.geo_keys_header = GeoKeyEntryStruct(1, 1, 0, 2)
+    vlr.geo_keys = [GeoKeyEntryStruct(3076, 0, 1, 9002),  # ProjLinearUnits: foot
+                    GeoKeyEntryStruct(4099, 0, 1, 9002)]  # VerticalUnits: foot
+    header.vlrs.append(vlr)
+    las = laspy.LasData(header)
+    las.x = 1000.0 + np.arange(4.0)
+    las.y = np.full(4, 2000.0)
+    las.z = np.full(4, 100.0)
+    las.classification = np.full(4, 2, np.uint8)
+    las.write(str(path))
+
+
+def test_read_cloud_converts_feet_to_metres_by_default(tmp_path):
+    laspy = pytest.importorskip("laspy")
+    _feet_las(tmp_path / "feet.las", laspy)
+    metres = read_cloud(tmp_path / "feet.las").point.positions.numpy()
+    np.testing.assert_allclose(metres[:, 0], (1000.0 + np.arange(4)) * 0.3048)
+    np.testing.assert_allclose(metres[:, 2], 100.0 * 0.3048)
+    feet = read_cloud(tmp_path / "feet.las", units="file").point.positions.numpy()
+    np.testing.assert_allclose(feet[:, 0], 1000.0 + np.arange(4))
+    with pytest.raises(InputError, match="units"):
+        read_cloud(tmp_path / "feet.las", units="yards")
+
+
+def test_read_cloud_and_evaluation_reader_agree_on_a_feet_tile(shared_data):
+    from o3d_terrain.evaluation.datasets import read_las_frame
+
+    path = shared_data / "las" / "4_6_crop.las"  # US survey feet
+    frame = read_las_frame(path)
+    cloud = read_cloud(path).point.positions.numpy()
+    np.testing.assert_allclose(cloud, frame.positions)
+    assert frame.metres_per_unit == pytest.approx(1200.0 / 3937.0)

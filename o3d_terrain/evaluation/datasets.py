@@ -21,7 +21,6 @@ Ground sets
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
@@ -29,7 +28,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..io import open_las
+from ..io import las_positions, las_units, open_las
 
 SEMANTIC_KITTI_GROUND = (40, 44, 48, 49, 60, 72)
 SEMANTIC_KITTI_IGNORED = (0, 1)
@@ -43,9 +42,6 @@ SEMANTIC_KITTI_OBSTACLE = (
 LAS_GROUND = (2,)
 LAS_IGNORED = (0, 7, 18)
 LAS_OBSTACLE = (4, 5, 6, 14, 15, 17)
-
-#: EPSG linear unit codes (GeoTIFF ProjLinearUnitsGeoKey) in metres
-_EPSG_UNITS = {9001: 1.0, 9002: 0.3048, 9003: 1200.0 / 3937.0}
 
 #: frame kinds: how the points were captured (some peers need to know, e.g. Patchwork++)
 KINDS = ("vehicle_lidar", "aerial", "stereo")
@@ -165,38 +161,18 @@ def read_semantic_kitti_frame(scan_path: str | os.PathLike, label_path: str | os
 
 
 def las_linear_unit(las) -> tuple[float, str]:
-    """Metres per coordinate unit of a laspy file, read from its GeoTIFF keys or WKT.
-
-    Returns ``(1.0, "unknown")`` when the file declares no unit.
-    """
-    for vlr in las.header.vlrs:
-        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
-            for key in vlr.geo_keys:
-                if key.id == 3076 and key.value_offset in _EPSG_UNITS:  # ProjLinearUnitsGeoKey
-                    code = int(key.value_offset)
-                    return _EPSG_UNITS[code], f"GeoTIFF key EPSG:{code}"
-    for vlr in las.header.vlrs:
-        if type(vlr).__name__ == "WktCoordinateSystemVlr":
-            text = vlr.string if isinstance(vlr.string, str) else str(vlr.string)
-            units = re.findall(r'UNIT\["([^"]+)",\s*([0-9.eE+-]+)', text)
-            if units:  # the last UNIT of a projected CRS is its linear unit
-                name, factor = units[-1]
-                try:
-                    value = float(factor)
-                except ValueError:
-                    continue
-                if 0.2 < value < 2.0:
-                    return value, f"WKT unit '{name}'"
-    return 1.0, "unknown"
+    """Metres per x/y unit of a laspy file and where it was read
+    (:func:`o3d_terrain.io.las_units`); ``(1.0, "unknown")`` when the file declares none."""
+    units = las_units(las)
+    return units.horizontal, units.source
 
 
 def read_las_frame(path: str | os.PathLike) -> LabelledFrame:
     """A LAS/LAZ tile with its ASPRS classes; feet are converted to metres."""
     path = Path(path)
     las = open_las(path)
-    factor, unit_source = las_linear_unit(las)
-    positions = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
-    positions = positions.astype(np.float64) * factor
+    positions, units = las_positions(las, to_metres=True)
+    factor, unit_source = units.horizontal, units.source
     classification = np.asarray(las.classification, dtype=np.int64)
     notes = ()
     if factor != 1.0:

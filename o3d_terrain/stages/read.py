@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..frame import Frame
-from ..io import CLOUD_EXTENSIONS, read_cloud
+from ..io import CLOUD_EXTENSIONS, UNITS, read_cloud
 from ..options import option
 from .base import SourceStage, stage
 
@@ -23,6 +23,11 @@ class ReadCloud(SourceStage):
     example = {"path": "cloud.ply"}
 
     path: str = option(kind="path", check=_check_extension, help="the point cloud file to read")
+    units: str = option("metres", choices=UNITS,
+                        help="LAS/LAZ: 'metres' converts from the units the file declares "
+                             "(US-feet tiles are scaled by 0.3048) so metric options mean "
+                             "metres; 'file' keeps the file's coordinates")
 
     def read(self) -> Frame:
-        return Frame(read_cloud(self.path)).with_note(f"{self.type_name}: read {self.path}")
+        return Frame(read_cloud(self.path, units=self.units)).with_note(
+            f"{self.type_name}: read {self.path}")

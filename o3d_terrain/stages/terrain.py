@@ -36,7 +36,8 @@ class RationalBSplineTerrain(Stage):
         None, kind=int, length=2, broadcast=True, nullable=True, rule=Range(2, 1000),
         check=_check_control_points,
         help="control points per axis at the end of the growth; null = about one every "
-             "2 cells (at least 1 m), at most 32 per axis",
+             "2 cells (at least 1 m), at most 32 per axis, or one every 6 m (at most 96) "
+             "where 32 would be farther apart",
     )
     degree: int = option(3, rule=Range(1, 5), help="polynomial degree of the B-spline basis")
     method: str = option("robust", choices=METHODS,
@@ -59,6 +60,12 @@ class RationalBSplineTerrain(Stage):
     max_obstacle_width: float = option(40.0, unit="m", rule=POSITIVE,
                                        help="terrain_prior: widest obstacle, sets the seed "
                                             "search window")
+    ground_layer: bool = option(
+        True,
+        help="robust method: a cell whose points form a layer just above its lowest point "
+             "under an object (canopy, wall) gives the fit the layer's height instead of "
+             "eq. 1's lifted sample (o3d_terrain.ground_layer)",
+    )
 
     def check_options(self) -> list[str]:
         if self.control_points is not None and min(self.control_points) < self.degree + 1:
@@ -73,6 +80,8 @@ class RationalBSplineTerrain(Stage):
             rational=self.rational, terrain_prior=self.terrain_prior,
             max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
             max_obstacle_width=self.max_obstacle_width,
+            positions=frame.positions if self.ground_layer else None,
+            ground_layer=self.ground_layer,
         )
         grid = frame.product("grid")
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)

@@ -1,0 +1,59 @@
+"""Ground-layer samples: the points within a thin layer above a cell's lowest point
+(see :mod:`o3d_terrain.ground_layer`).
+
+Arrays are ``[ix, iy]`` like the height grid. NumPy in, NumPy out.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .grid import _cell
+
+
+@numba.njit(cache=True)
+def ground_layer_samples(positions, x_min, y_min, cell_size, z, lowest, count, measured,
+                         layer, min_points, min_fraction):
+    """(samples, replaced) over the (nx, ny) grid: ``z`` where kept; the mean height of the
+    points with lowest <= z_point <= lowest + layer where the cell is ``measured``, its
+    sample is above that layer, and the layer holds at least ``min_points`` points and
+    ``min_fraction`` of the cell's ``count``.
+
+    A pass over the cells finds the candidates (sample above the layer); only if there are
+    any, one pass over the rows (x, y, z) of ``positions`` (points outside the grid or with
+    a non-finite coordinate are skipped); then one pass over the cells."""
+    nx, ny = z.shape
+    m = nx * ny
+    flat_z = z.reshape(m)
+    flat_lowest = lowest.reshape(m)
+    flat_count = count.reshape(m)
+    flat_measured = measured.reshape(m)
+    # candidate cells: sample above the layer (few: most cells are compact)
+    top = np.full(m, -np.inf)
+    any_candidate = False
+    for c in range(m):
+        if flat_measured[c] and flat_z[c] > flat_lowest[c] + layer:
+            top[c] = flat_lowest[c] + layer
+            any_candidate = True
+    near = np.zeros(m, np.int64)
+    total = np.zeros(m)
+    if any_candidate:
+        for k in range(positions.shape[0]):
+            c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+            if c < 0:
+                continue
+            h = positions[k, 2]
+            if h <= top[c] and math.isfinite(h):
+                near[c] += 1
+                total[c] += h
+    samples = flat_z.copy()
+    replaced = np.zeros(m, np.bool_)
+    for c in range(m):
+        n = near[c]
+        if n >= min_points and n >= min_fraction * flat_count[c]:
+            samples[c] = total[c] / n
+            replaced[c] = True
+    return samples.reshape(nx, ny), replaced.reshape(nx, ny)

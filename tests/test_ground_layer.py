@@ -1,0 +1,115 @@
+"""Ground-layer samples (cells holding terrain under an object) and the layout of wide tiles,
+checked against the exact terrain of small synthetic clouds."""
+
+import numpy as np
+import pytest
+
+from o3d_terrain import InputError
+from o3d_terrain.api import fit_terrain, segment_terrain
+from o3d_terrain.grid import MEASURED, HeightGrid, quantize_points
+from o3d_terrain.ground_layer import default_layer, ground_layer_samples
+from o3d_terrain.terrain import AUTO_MAX_SPACING, default_control_points, fit_grid
+
+
+def hills(x, y):
+    return 3.0 * np.sin(x / 25.0) + 2.0 * np.cos(y / 30.0) + 0.05 * x
+
+
+def _canopy_cloud(rng, ground_share=0.2, size=40.0, width=30.0):
+    """Dense airborne-like hilly ground (40 points/m², 2 cm noise) with a canopy ``width`` m
+    wide: under it only ``ground_share`` of the returns reach the ground, the rest spread
+    4-12 m up (so eq. 1 of a canopy cell is lifted by metres)."""
+    n = int(size * size * 40)
+    x, y = rng.uniform(0, size, n), rng.uniform(0, size, n)
+    z = hills(x, y) + rng.normal(0, 0.02, n)
+    under = (np.abs(x - size / 2) < width / 2) & (np.abs(y - size / 2) < width / 2)
+    leaf = under & (rng.uniform(size=n) > ground_share)
+    z[leaf] += rng.uniform(4.0, 12.0, leaf.sum())
+    return np.column_stack([x, y, z]), under, leaf
+
+
+def test_canopy_cells_get_their_ground_layer(rng):
+    cloud, under, leaf = _canopy_cloud(rng)
+    grid = quantize_points(cloud, cell_size=0.5)
+    samples, replaced = ground_layer_samples(grid, cloud)
+    cx, cy = grid.x_centers[:, None], grid.y_centers[None, :]
+    truth = hills(cx, cy)
+    inside = (np.abs(cx - 20) < 14) & (np.abs(cy - 20) < 14) & (grid.state == MEASURED)
+    # eq. 1 is lifted into the canopy; the ground layer is on the ground (within the in-cell
+    # relief of the hills, a few centimetres)
+    assert np.median((grid.z - truth)[inside]) > 1.0
+    # (a cell without any ground return may take the lowest leaves: still below eq. 1)
+    assert np.percentile(np.abs(samples - truth)[replaced], 95) < 0.1
+    assert np.all(samples <= grid.z)
+    assert replaced[inside].mean() > 0.3
+    # outside the canopy nothing changes
+    outside = (np.abs(cx - 20) > 16) | (np.abs(cy - 20) > 16)
+    assert not replaced[outside].any()
+
+
+def test_fit_follows_the_ground_under_a_canopy_and_keeps_it_terrain(rng):
+    cloud, under, leaf = _canopy_cloud(rng)
+    xs, ys = np.meshgrid(np.linspace(7, 33, 27), np.linspace(7, 33, 27))
+    with_layer = fit_terrain(cloud)
+    err = with_layer(xs.ravel(), ys.ravel()) - hills(xs.ravel(), ys.ravel())
+    assert np.abs(err).max() < 0.1
+    lifted = fit_grid(quantize_points(cloud, cell_size=0.5))  # eq. 1 samples only
+    assert np.abs(lifted(xs.ravel(), ys.ravel()) - hills(xs.ravel(), ys.ravel())).max() > 0.5
+    _, inliers = segment_terrain(cloud)
+    terrain = np.zeros(len(cloud), bool)
+    terrain[inliers] = True
+    assert terrain[under & ~leaf].mean() > 0.97  # ground under the canopy
+    assert terrain[leaf].mean() < 0.01
+
+
+def test_a_30m_building_on_hills_stays_off_the_terrain(rng):
+    size, width = 120.0, 30.0
+    n = int(size * size * 2)
+    x, y = rng.uniform(0, size, n), rng.uniform(0, size, n)
+    z = hills(x, y) + rng.normal(0, 0.02, n)
+    roof = (np.abs(x - 60) < width / 2) & (np.abs(y - 60) < width / 2)
+    z[roof] = hills(60.0, 60.0) + 8.0 + rng.normal(0, 0.02, roof.sum())
+    surface, inliers = segment_terrain(np.column_stack([x, y, z]))
+    xs, ys = np.meshgrid(np.linspace(46, 74, 15), np.linspace(46, 74, 15))
+    assert np.abs(surface(xs.ravel(), ys.ravel()) - hills(xs.ravel(), ys.ravel())).max() < 0.2
+    terrain = np.zeros(n, bool)
+    terrain[inliers] = True
+    assert terrain[roof].mean() == 0.0 and terrain[~roof].mean() > 0.99
+
+
+def test_noise_and_single_low_points_keep_eq1(rng):
+    # one cell of pure range noise (σ 0.3 m, 60 points) and one cell of ground with a single
+    # point 1 m below it: neither has a ground layer under an object
+    noise = np.column_stack([rng.uniform(0, 0.5, (60, 2)), rng.normal(0, 0.3, 60)])
+    ground = np.column_stack([rng.uniform(0.5, 1.0, (30, 1)), rng.uniform(0, 0.5, (30, 1)),
+                              rng.normal(0, 0.01, (30, 1))])
+    low = np.array([[0.75, 0.25, -1.0]])
+    cloud = np.vstack([noise, ground, low])
+    grid = quantize_points(cloud, cell_size=0.5, region=(0.0, 1.0, 0.0, 0.5))
+    samples, replaced = ground_layer_samples(grid, cloud)
+    assert not replaced.any()
+    np.testing.assert_array_equal(samples, grid.z)
+
+
+def test_ground_layer_checks_its_inputs(rng):
+    cloud = rng.uniform(0, 1, (50, 3))
+    grid = quantize_points(cloud, cell_size=0.5)
+    with pytest.raises(InputError, match="layer"):
+        ground_layer_samples(grid, cloud, layer=-1.0)
+    with pytest.raises(InputError, match="min_fraction"):
+        ground_layer_samples(grid, cloud, min_fraction=2.0)
+    with pytest.raises(InputError, match="lowest"):
+        ground_layer_samples(HeightGrid(0.0, 0.0, 0.5, grid.z, grid.count, grid.state), cloud)
+    assert default_layer(0.5) == pytest.approx(0.09 + 0.15)
+
+
+def test_wide_tiles_keep_the_control_spacing_bounded():
+    def flat_grid(cells):
+        return HeightGrid(0.0, 0.0, 0.5, np.zeros((cells, cells)),
+                          np.ones((cells, cells), np.int64),
+                          np.full((cells, cells), MEASURED, np.uint8))
+
+    assert default_control_points(flat_grid(320)) == (32, 32)  # 160 m: a vehicle lidar frame
+    n = default_control_points(flat_grid(800))  # 400 m: an airborne tile
+    assert n[0] == n[1] > 32 and 400.0 / (n[0] - 3) <= AUTO_MAX_SPACING
+    assert default_control_points(flat_grid(4000)) == (96, 96)  # 2 km: the hard limit
