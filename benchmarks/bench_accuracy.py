@@ -16,7 +16,7 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
-     [--terrain-prior]
+     [--no-terrain-prior]
 """
 
 from __future__ import annotations
@@ -193,11 +193,11 @@ def main() -> None:
     parser.add_argument("--scenes", default=",".join(SCENES))
     parser.add_argument("--sensors", default=",".join(SENSORS))
     parser.add_argument("--peers", action="store_true", help="CSF and SMRF on the LAS tiles")
-    parser.add_argument("--terrain-prior", action="store_true",
-                        help="fit with terrain_prior=True (slope-limited connectivity)")
+    parser.add_argument("--no-terrain-prior", action="store_true",
+                        help="fit with terrain_prior=False (plain robust weights)")
     args = parser.parse_args()
-    if args.terrain_prior:
-        FIT_OPTIONS["terrain_prior"] = True
+    if args.no_terrain_prior:
+        FIT_OPTIONS["terrain_prior"] = False
     parts = set(args.only.split(","))
     root = data_root()
     if "synthetic" in parts:

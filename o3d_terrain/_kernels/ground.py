@@ -191,3 +191,36 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
                     queue[tail] = a * ny + b
                     tail += 1
     return accepted
+
+
+@numba.njit(cache=True)
+def steepest_neighbour_slope(height, cell_size):
+    """Per cell, the steepest slope (rise over run, ≥ 0) from it to any 8-neighbour:
+    max |height[n] - height[c]| / d(c, n) over neighbours n with finite height; 0 for a cell
+    without finite neighbours, and for inf (empty) cells."""
+    nx, ny = height.shape
+    out = np.zeros((nx, ny))
+    diagonal = cell_size * _SQRT2
+    for i in range(nx):
+        for j in range(ny):
+            h = height[i, j]
+            if not np.isfinite(h):
+                continue
+            best = 0.0
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0):
+                        continue
+                    hn = height[a, b]
+                    if not np.isfinite(hn):
+                        continue
+                    d = cell_size if (di == 0 or dj == 0) else diagonal
+                    v = abs(hn - h) / d
+                    if v > best:
+                        best = v
+            out[i, j] = best
+    return out
