@@ -53,16 +53,16 @@ def cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny):
 
 @numba.njit(cache=True)
 def quantize(cells, z, nx, ny, min_points, fill_empty):
-    """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest and
-    highest z.
+    """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
+    and mean z.
 
     ``cells`` from :func:`cell_indices`; points with a negative cell or non-finite z are skipped
     and counted: the result ends with (number non-finite, number outside the grid).
     Cells with fewer than ``min_points`` points are empty. Empty cells take the mean of the
     8-neighbour *measured* cells (state FILLED) when ``fill_empty``; otherwise, or with no
     measured neighbour, they are INVALID with Z = 0. Sums are taken in point order (a plain
-    reference implementation reproduces them exactly). Lowest and highest z are inf and -inf
-    in cells without points (whatever ``min_points``).
+    reference implementation reproduces them exactly). Lowest and highest z are inf and -inf,
+    the mean 0, in cells without points (whatever ``min_points``).
     """
     m = nx * ny
     count = np.zeros(m, np.int64)
@@ -129,6 +129,7 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
         state.reshape(nx, ny),
         lowest.reshape(nx, ny),
         highest.reshape(nx, ny),
+        mean.reshape(nx, ny),
         nonfinite,
         outside,
     )
