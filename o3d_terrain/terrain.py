@@ -40,6 +40,9 @@ AUTO_MAX_CONTROL_POINTS = 32
 #: (with one or two points Z equals the lowest point whatever the points are)
 MIN_COMPACT_POINTS = 3
 
+#: compact neighbours a cell with fewer points needs to be called compact
+SPARSE_SUPPORT = 2
+
 
 @dataclass(frozen=True)
 class IterationRecord:
@@ -117,8 +120,9 @@ def fit_grid_detailed(
         (:func:`terrain_prior_mask`): connected compact cells (enough points, no vertical
         extent beyond the terrain's rise across the cell) above the surface get a noise
         threshold widened by half that rise, and are not equalized, so steep narrow terrain
-        such as a berm is not rejected as an obstacle (docs/algorithm.md). False = the plain
-        robust weights.
+        such as a berm is not rejected as an obstacle; their sample is max(eq. 1, mean z -
+        noise_floor) (all their points are terrain) when the grid carries the mean
+        (docs/algorithm.md). False = the plain robust weights on eq. 1 samples.
     max_slope_deg: steepest terrain between neighbouring cells (degrees).
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
@@ -177,6 +181,11 @@ def fit_grid_detailed(
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow)
             prior = (compact, 0.5 * rise)
+            if grid.mean is not None:
+                # all points of a compact cell are terrain: eq. 1's "- sigma" (meant to discount
+                # obstacle points) would only lower the sample by the terrain's relief inside
+                # the cell (0.29 rise on a plane); subtract at most the sensor's noise floor
+                z = np.where(compact, np.maximum(z, grid.mean - z0 - noise_floor), z)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
                           smoothing, noise_floor, max_iterations, prior)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
@@ -199,7 +208,7 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
     wall) are neither seeds nor crossed.
     compact: connected cells whose points could all lie on the terrain around them:
     - at least :data:`MIN_COMPACT_POINTS` points (with one or two, eq. 1 equals the lowest
-      point whatever the points are, so the next test says nothing);
+      point whatever the points are, so the next test says nothing; but see below);
     - the sample (eq. 1) within tolerance plus half the terrain's rise across the cell (see
       below) of the lowest point (no wall or person filling the cell);
     - when the grid carries the highest point per cell: highest - lowest within tolerance plus
@@ -207,6 +216,10 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
       lowest point to a neighbour's (at most tan(max_slope_deg)). A cell on a wall or a bush
       face holds points far above its lowest while its neighbours' lowest points (the ground
       along and in front of the face) are level with its own.
+    A connected cell with fewer points (and no larger extent) is compact when at least
+    :data:`SPARSE_SUPPORT` of its 8-neighbours are compact by the rules above and its lowest
+    point is no more than tolerance above the highest of theirs: it lies within the terrain
+    they span (a slope seen at a grazing angle), not above it (a step of a wall).
     """
     connected, compact, _ = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
                                            max_obstacle_width, tolerance)
@@ -242,6 +255,14 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     if grid.highest is not None:
         # eq. 1 cannot see a vertical extent carried by a few high points; the extent can
         compact &= grid.highest - low <= tolerance + rise
+    # a cell with one or two points (a slope seen at a grazing angle, the back of a berm) is
+    # compact when it lies within the terrain spanned by at least two compact neighbours: not
+    # above the highest of their lowest points (a step of a wall or a bush face is)
+    sparse = connected & (grid.count < MIN_COMPACT_POINTS)
+    if grid.highest is not None:
+        sparse &= grid.highest - low <= tolerance + rise
+    compact |= _ground.below_compact_neighbours(low, sparse, compact, float(tolerance),
+                                                SPARSE_SUPPORT)
     return connected, compact, rise
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from o3d_terrain._kernels.ground import steepest_neighbour_slope, window_min
+from o3d_terrain._kernels.ground import (below_compact_neighbours, steepest_neighbour_slope,
+                                         window_min)
 
 
 @pytest.mark.parametrize("shape,radius", [((31, 20), 4), ((7, 5), 3), ((30, 9), 1),
@@ -35,3 +36,17 @@ def test_steepest_neighbour_slope_matches_a_plain_loop(rng):
                             and np.isfinite(h[i, j]):
                         best = max(best, abs(h[a, b] - h[i, j]) / (0.5 * np.hypot(di, dj)))
             assert got[i, j] == pytest.approx(best)
+
+
+@pytest.mark.parametrize("need", [1, 2])
+def test_below_compact_neighbours_matches_a_plain_loop(rng, need):
+    h = rng.normal(0, 0.2, (12, 9))
+    candidate = rng.uniform(size=h.shape) < 0.5
+    compact = ~candidate & (rng.uniform(size=h.shape) < 0.7)
+    got = below_compact_neighbours(h, candidate, compact, 0.09, need)
+    for i in range(12):
+        for j in range(9):
+            tops = [h[a, b] for a in range(i - 1, i + 2) for b in range(j - 1, j + 2)
+                    if (a, b) != (i, j) and 0 <= a < 12 and 0 <= b < 9 and compact[a, b]]
+            expected = candidate[i, j] and len(tops) >= need and h[i, j] <= max(tops) + 0.09
+            assert got[i, j] == expected

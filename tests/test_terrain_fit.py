@@ -267,3 +267,34 @@ def test_terrain_prior_compact_cells_have_no_vertical_extent_beyond_the_local_ri
                       grid.lowest)
     assert terrain_prior_mask(bare)[1][wall].all()
 
+
+
+def test_terrain_prior_samples_of_compact_cells_are_not_biased_low_on_a_slope(rng):
+    # eq. 1 (mean - sigma) sits 0.21 rise below the cell's centre on a plane of rise = 0.29 m
+    # per cell (30 deg); compact cells use max(eq. 1, mean - noise_floor): bias <= noise_floor
+    slope = np.tan(np.radians(30.0))
+    xy = rng.uniform([0, -6], [12, 6], size=(24 * 24 * 10, 2))
+    z = slope * xy[:, 0] + rng.normal(0, 0.02, len(xy))
+    grid = quantize_points(np.column_stack([xy, z]), cell_size=0.5)
+    bias = {}
+    for prior in (True, False):
+        surface = fit_grid_detailed(grid, terrain_prior=prior, noise_floor=0.03).surface
+        bias[prior] = np.nanmean(surface(xy[:, 0], xy[:, 1]) - slope * xy[:, 0])
+    assert bias[False] < -0.05  # eq. 1: about -0.21 * 0.29 m
+    assert -0.03 - 0.005 < bias[True] < 0.0
+
+
+def test_terrain_prior_sparse_cells_between_compact_ones_are_compact():
+    from o3d_terrain.terrain import terrain_prior_mask
+
+    # the berm seen at a grazing angle: every other row of cells along y holds one point
+    grid, xc, yc = analytic_grid(berm, points_per_cell=4)
+    count = grid.count.copy()
+    count[:, 1::2] = 1
+    sparse_grid = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, count, grid.state)
+    connected, compact = terrain_prior_mask(sparse_grid)
+    assert compact.all()
+    # alone (no compact neighbour), the same cells say nothing
+    count[:] = 1
+    lone = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, count, grid.state)
+    assert not terrain_prior_mask(lone)[1].any()

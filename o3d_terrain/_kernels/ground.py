@@ -228,3 +228,32 @@ def steepest_neighbour_slope(height, cell_size):
                         best = v
             out[i, j] = best
     return out
+
+
+@numba.njit(cache=True)
+def below_compact_neighbours(height, candidate, compact, tolerance, min_neighbours):
+    """Candidate cells whose height is at most tolerance above the highest of their compact
+    8-neighbours, with at least ``min_neighbours`` such neighbours: cells that lie within the
+    terrain their compact neighbours span (a sparse cell on a slope between a crest and a foot)
+    and not above it (the step of a wall or a bush face)."""
+    nx, ny = height.shape
+    out = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            if not candidate[i, j]:
+                continue
+            top = -np.inf
+            n = 0
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0) or not compact[a, b]:
+                        continue
+                    n += 1
+                    if height[a, b] > top:
+                        top = height[a, b]
+            out[i, j] = n >= min_neighbours and height[i, j] <= top + tolerance
+    return out
