@@ -298,3 +298,23 @@ def test_terrain_prior_sparse_cells_between_compact_ones_are_compact():
     count[:] = 1
     lone = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, count, grid.state)
     assert not terrain_prior_mask(lone)[1].any()
+
+
+def test_default_fit_follows_a_steep_ramp_that_plain_robust_weights_reject():
+    # a 35 deg ramp rising sideways next to the default obstacles (scene not used to set any
+    # parameter): the plain robust weights cut its top off, the terrain prior follows it
+    from o3d_terrain.synthetic import Plane, Ramp, Scene, default_obstacles, sample_lidar
+
+    scene = Scene("ramp35_side", (Plane(), Ramp(0, 4, 90, 35.0, 5.0)), default_obstacles(0))
+    cloud = sample_lidar(scene, seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    usable = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
+    terrain = usable & ~cloud.is_obstacle
+    grid = quantize_points(p[usable], cell_size=0.5)
+    truth = cloud.terrain_height(p[terrain, 0], p[terrain, 1])
+    rmse = {}
+    for prior in (True, False):
+        surface = fit_grid(grid, terrain_prior=prior)
+        err = surface(p[terrain, 0], p[terrain, 1]) - truth
+        rmse[prior] = np.sqrt(np.nanmean(err ** 2))
+    assert rmse[True] < 0.05 < 0.1 < rmse[False]
