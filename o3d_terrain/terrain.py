@@ -11,7 +11,9 @@ equalize samples that lie above the surface, add control points, repeat. Two met
   bounded asymmetric weights (a monotone transform of eq. 3), a robust noise scale, equalization
   that clips outliers onto a band above the surface (no low bias), a rational fit consistent with
   R, coarse-to-fine growth of the control grid, and a thin-plate penalty so that control points
-  without data under them continue the surface smoothly instead of running away.
+  without data under them continue the surface smoothly instead of running away; by default
+  also a slope-limited terrain prior (:func:`terrain_prior_mask`) so that steep narrow terrain
+  is not rejected as an obstacle.
 """
 
 from __future__ import annotations
