@@ -245,26 +245,19 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     crossed = np.where(walls, np.inf, crossed)
     connected = measured & _ground.connected_terrain(crossed, seeds & ~walls, c, step,
                                                       float(tolerance))
-    # the terrain's rise across one cell: what points on the terrain may span inside a cell
-    rise = c * np.minimum(_ground.steepest_neighbour_slope(low, c), step)
-    # eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
+    # rise: the terrain's rise across one cell, what points on the terrain may span inside it.
+    # Eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
     # with one or two points (mean - sigma of two values is the lower one): such a cell (one
     # ring crossing it, e.g. the slanted line of a tilted ring over a wall or a bush) carries
-    # no evidence of being compact, so it is not. On a slope Z sits above the lowest point
-    # (about 0.21 rise for points spread evenly over a plane), hence half the rise is allowed.
-    compact = (connected & (grid.count >= MIN_COMPACT_POINTS)
-               & (grid.z - low <= tolerance + 0.5 * rise))
-    if grid.highest is not None:
-        # eq. 1 cannot see a vertical extent carried by a few high points; the extent can
-        compact &= grid.highest - low <= tolerance + rise
-    # a cell with one or two points (a slope seen at a grazing angle, the back of a berm) is
-    # compact when it lies within the terrain spanned by at least two compact neighbours: not
-    # above the highest of their lowest points (a step of a wall or a bush face is)
-    sparse = connected & (grid.count < MIN_COMPACT_POINTS)
-    if grid.highest is not None:
-        sparse &= grid.highest - low <= tolerance + rise
-    compact |= _ground.below_compact_neighbours(low, sparse, compact, float(tolerance),
-                                                SPARSE_SUPPORT)
+    # no evidence of its own; it is compact only when it lies within the terrain spanned by at
+    # least two compact neighbours, not above the highest of their lowest points (a step of a
+    # wall or a bush face is). On a slope Z sits above the lowest point (about 0.21 rise for
+    # points spread evenly over a plane), hence half the rise is allowed. Eq. 1 cannot see a
+    # vertical extent carried by a few high points; highest - lowest can.
+    use_highest = grid.highest is not None
+    compact, rise = _ground.compact_cells(
+        low, grid.z, grid.highest if use_highest else low, grid.count, connected, c, step,
+        float(tolerance), MIN_COMPACT_POINTS, SPARSE_SUPPORT, use_highest)
     return connected, compact, rise
 
 

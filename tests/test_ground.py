@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from o3d_terrain._kernels.ground import (below_compact_neighbours, steepest_neighbour_slope,
-                                         window_min)
+from o3d_terrain._kernels.ground import (below_compact_neighbours, compact_cells,
+                                         steepest_neighbour_slope, window_min)
 
 
 @pytest.mark.parametrize("shape,radius", [((31, 20), 4), ((7, 5), 3), ((30, 9), 1),
@@ -50,3 +50,25 @@ def test_below_compact_neighbours_matches_a_plain_loop(rng, need):
                     if (a, b) != (i, j) and 0 <= a < 12 and 0 <= b < 9 and compact[a, b]]
             expected = candidate[i, j] and len(tops) >= need and h[i, j] <= max(tops) + 0.09
             assert got[i, j] == expected
+
+
+@pytest.mark.parametrize("use_highest", [True, False])
+def test_compact_cells_matches_its_definition(rng, use_highest):
+    shape = (14, 11)
+    low = rng.normal(0, 0.3, shape)
+    low[rng.uniform(size=shape) < 0.1] = np.inf
+    sample = low + rng.uniform(0, 0.2, shape)
+    highest = low + rng.uniform(0, 0.6, shape)
+    count = rng.integers(1, 6, shape)
+    connected = np.isfinite(low) & (rng.uniform(size=shape) < 0.9)
+    compact, rise = compact_cells(low, sample, highest, count, connected, 0.5, 1.0, 0.09, 3, 2,
+                                  use_highest)
+    expected_rise = 0.5 * np.minimum(steepest_neighbour_slope(low, 0.5), 1.0)
+    np.testing.assert_allclose(rise, expected_rise)
+    with np.errstate(invalid="ignore"):  # inf - inf at empty cells (never connected)
+        extent = (highest - low <= 0.09 + expected_rise) if use_highest else np.ones(shape, bool)
+        dense = connected & (count >= 3) & (sample - low <= 0.09 + 0.5 * expected_rise) & extent
+    sparse = connected & (count < 3) & extent
+    expected = dense | below_compact_neighbours(low, sparse, dense, 0.09, 2)
+    assert np.array_equal(compact, expected)
+    assert dense.any() and (expected & ~dense).any()  # both kinds occur

@@ -257,3 +257,37 @@ def below_compact_neighbours(height, candidate, compact, tolerance, min_neighbou
                         top = height[a, b]
             out[i, j] = n >= min_neighbours and height[i, j] <= top + tolerance
     return out
+
+
+@numba.njit(cache=True)
+def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_slope,
+                  tolerance, min_points, support, use_highest):
+    """The compact cells of a connected terrain and the terrain's rise across each cell
+    (o3d_terrain.terrain.terrain_prior_mask), in two passes over the grid.
+
+    rise = cell_size * min(:func:`steepest_neighbour_slope` of ``low``, max_rise_slope).
+    Dense compact: connected, count >= min_points, sample - low <= tolerance + rise / 2 and
+    (with ``use_highest``) highest - low <= tolerance + rise. Sparse compact: connected,
+    count < min_points, the same extent test, and :func:`below_compact_neighbours` of the
+    dense compact cells with ``support``. Returns (compact, rise)."""
+    nx, ny = low.shape
+    rise = steepest_neighbour_slope(low, cell_size)
+    dense = np.zeros((nx, ny), np.bool_)
+    sparse = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            r = cell_size * min(rise[i, j], max_rise_slope)
+            rise[i, j] = r
+            if not connected[i, j]:
+                continue
+            extent_ok = (not use_highest) or highest[i, j] - low[i, j] <= tolerance + r
+            if count[i, j] >= min_points:
+                dense[i, j] = extent_ok and sample[i, j] - low[i, j] <= tolerance + 0.5 * r
+            else:
+                sparse[i, j] = extent_ok
+    compact = below_compact_neighbours(low, sparse, dense, tolerance, support)
+    for i in range(nx):
+        for j in range(ny):
+            if dense[i, j]:
+                compact[i, j] = True
+    return compact, rise
