@@ -57,7 +57,7 @@ def _build(make, **options):
 
 
 def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
-                   smoothing, terrain_prior=False) -> Frame:
+                   smoothing, terrain_prior=True) -> Frame:
     """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
@@ -88,15 +88,16 @@ def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: fl
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
                 control_points: Sequence[int] | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,
-                terrain_prior: bool = False) -> TerrainSurface:
+                terrain_prior: bool = True) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
     cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
     (at least 1 m), at most 32 per axis. degree: B-spline degree. method: "robust" or "paper".
     smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
-    terrain_prior: keep cells connected to the ground under a 45° slope limit as terrain
-    (steep berms and ditch walls; see docs/algorithm.md for what it costs on urban scans).
+    terrain_prior: do not reject compact cells connected to the ground under a 45° slope
+    limit as obstacles (steep berms and ditch walls; docs/algorithm.md); False = plain robust
+    weights.
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
@@ -112,7 +113,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     below_threshold: float = 0.5, range_coefficient: float = 0.0,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
                     smoothing: float = 0.05,
-                    terrain_prior: bool = False) -> tuple[TerrainSurface, np.ndarray]:
+                    terrain_prior: bool = True) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +

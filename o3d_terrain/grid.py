@@ -33,6 +33,8 @@ class HeightGrid:
     count: np.ndarray  # (nx, ny) int64 points per cell
     state: np.ndarray  # (nx, ny) uint8: INVALID 0, MEASURED 1, FILLED 2
     lowest: np.ndarray | None = None  # (nx, ny) lowest z per cell (inf where empty)
+    highest: np.ndarray | None = None  # (nx, ny) highest z per cell (-inf where empty)
+    mean: np.ndarray | None = None  # (nx, ny) mean z per cell (0 where empty)
     skipped_nonfinite: int = 0  # points skipped for a NaN or infinite coordinate
     skipped_outside: int = 0  # finite points outside the grid's region
 
@@ -74,16 +76,20 @@ class HeightGrid:
         )
 
     def save(self, path: str | Path) -> None:
+        extremes = {k: v for k, v in (("lowest", self.lowest), ("highest", self.highest),
+                                      ("mean", self.mean)) if v is not None}
         np.savez_compressed(
             path, kind="HeightGrid", x_min=self.x_min, y_min=self.y_min,
-            cell_size=self.cell_size, z=self.z, count=self.count, state=self.state,
+            cell_size=self.cell_size, z=self.z, count=self.count, state=self.state, **extremes,
         )
 
     @classmethod
     def load(cls, path: str | Path) -> "HeightGrid":
         with np.load(path) as data:
+            extremes = [data[k] if k in data.files else None
+                        for k in ("lowest", "highest", "mean")]
             return cls(float(data["x_min"]), float(data["y_min"]), float(data["cell_size"]),
-                       data["z"], data["count"], data["state"])
+                       data["z"], data["count"], data["state"], *extremes)
 
 
 def grid_shape(region: tuple[float, float, float, float], cell_size: float) -> tuple[int, int]:
@@ -137,8 +143,8 @@ def quantize_points(
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
     cells = _grid.cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny)
-    height, count, state, lowest, nonfinite, outside = _grid.quantize(
+    height, count, state, lowest, highest, mean, nonfinite, outside = _grid.quantize(
         cells, z, nx, ny, min_points, fill_empty
     )
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
-                      int(nonfinite), int(outside))
+                      highest, mean, int(nonfinite), int(outside))

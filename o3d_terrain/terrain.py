@@ -11,7 +11,9 @@ equalize samples that lie above the surface, add control points, repeat. Two met
   bounded asymmetric weights (a monotone transform of eq. 3), a robust noise scale, equalization
   that clips outliers onto a band above the surface (no low bias), a rational fit consistent with
   R, coarse-to-fine growth of the control grid, and a thin-plate penalty so that control points
-  without data under them continue the surface smoothly instead of running away.
+  without data under them continue the surface smoothly instead of running away; by default
+  also a slope-limited terrain prior (:func:`terrain_prior_mask`) so that steep narrow terrain
+  is not rejected as an obstacle.
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ AUTO_LIMIT_CONTROL_POINTS = 96
 #: fewest points for which eq. 1 can tell a compact cell from one holding a vertical face
 #: (with one or two points Z equals the lowest point whatever the points are)
 MIN_COMPACT_POINTS = 3
+
+#: compact neighbours a cell with fewer points needs to be called compact
+SPARSE_SUPPORT = 2
 
 
 @dataclass(frozen=True)
@@ -105,7 +110,7 @@ def fit_grid_detailed(
     filled_weight: float = 0.3,
     rational: bool = True,
     max_iterations: int = 30,
-    terrain_prior: bool = False,
+    terrain_prior: bool = True,
     max_slope_deg: float = 45.0,
     gap_slope_deg: float = 20.0,
     max_obstacle_width: float = 40.0,
@@ -125,12 +130,12 @@ def fit_grid_detailed(
         surface); False gives a plain B-spline.
     max_iterations: cap on loop passes.
     terrain_prior: (robust) slope-limited connectivity to the lowest cells
-        (:func:`terrain_prior_mask`): connected compact cells keep full weight above the surface
-        on the coarse layouts (steep narrow terrain such as a berm is not rejected before the
-        layout can follow it) and a threshold widened by the in-cell spread of the steepest
-        slope on the final one; cells with fewer than 3 points are never compact. Off by
-        default: on SemanticKITTI it still lets cells on bush faces and building walls through
-        (docs/algorithm.md).
+        (:func:`terrain_prior_mask`): connected compact cells (enough points, no vertical
+        extent beyond the terrain's rise across the cell) above the surface get a noise
+        threshold widened by half that rise, and are not equalized, so steep narrow terrain
+        such as a berm is not rejected as an obstacle; their sample is max(eq. 1, mean z -
+        noise_floor) (all their points are terrain) when the grid carries the mean
+        (docs/algorithm.md). False = the plain robust weights on eq. 1 samples.
     max_slope_deg: steepest terrain between neighbouring cells (degrees).
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
@@ -193,13 +198,16 @@ def fit_grid_detailed(
         base = np.where(measured, 1.0, np.where(grid.state == FILLED, filled_weight, 0.0))
         prior = None
         if terrain_prior:
-            _, compact = terrain_prior_mask(grid, max_slope_deg=max_slope_deg,
-                                            gap_slope_deg=gap_slope_deg,
-                                            max_obstacle_width=max_obstacle_width,
-                                            tolerance=3.0 * noise_floor)
-            # height spread of a plane of the steepest slope inside one cell
-            spread = 0.3 * grid.cell_size * math.tan(math.radians(max_slope_deg))
-            prior = (compact, spread)
+            _, compact, rise = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
+                                              max_obstacle_width, 3.0 * noise_floor)
+            # compact cells above the surface: threshold widened by half the terrain's rise
+            # across one cell (what a control grid of about 2 cells' spacing cannot follow)
+            prior = (compact, 0.5 * rise)
+            if grid.mean is not None:
+                # all points of a compact cell are terrain: eq. 1's "- sigma" (meant to discount
+                # obstacle points) would only lower the sample by the terrain's relief inside
+                # the cell (0.29 rise on a plane); subtract at most the sensor's noise floor
+                z = np.where(compact, np.maximum(z, grid.mean - z0 - noise_floor), z)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
                           smoothing, noise_floor, max_iterations, prior)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
@@ -218,13 +226,32 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
     the height of the lowest gap_slope_deg cone through the data). Seeds: measured cells that
     are the lowest within max_obstacle_width / 2. Obstacle walls are jumps steeper than the
     limit, so roofs and tops are not connected; steep smooth terrain is.
-    compact: connected cells with at least :data:`MIN_COMPACT_POINTS` points whose sample
-    (eq. 1) is within tolerance of their lowest point; a cell holding a wall or a person (lowest
-    point on the ground, sample above it) is not, nor is a cell with one or two points (there
-    eq. 1 equals the lowest point, so the test says nothing).
     Cells above the max-slope cone of another cell (Vosselman's slope filter: the top of a
     wall) are neither seeds nor crossed.
+    compact: connected cells whose points could all lie on the terrain around them:
+    - at least :data:`MIN_COMPACT_POINTS` points (with one or two, eq. 1 equals the lowest
+      point whatever the points are, so the next test says nothing; but see below);
+    - the sample (eq. 1) within tolerance plus half the terrain's rise across the cell (see
+      below) of the lowest point (no wall or person filling the cell);
+    - when the grid carries the highest point per cell: highest - lowest within tolerance plus
+      the terrain's rise across one cell, cell_size times the steepest slope from the cell's
+      lowest point to a neighbour's (at most tan(max_slope_deg)). A cell on a wall or a bush
+      face holds points far above its lowest while its neighbours' lowest points (the ground
+      along and in front of the face) are level with its own.
+    A connected cell with fewer points (and no larger extent) is compact when at least
+    :data:`SPARSE_SUPPORT` of its 8-neighbours are compact by the rules above and its lowest
+    point is no more than tolerance above the highest of theirs: it lies within the terrain
+    they span (a slope seen at a grazing angle), not above it (a step of a wall).
     """
+    connected, compact, _ = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
+                                           max_obstacle_width, tolerance)
+    return connected, compact
+
+
+def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance):
+    """(connected, compact, rise) of :func:`terrain_prior_mask`; rise (m) = cell_size times
+    the steepest slope from each cell's lowest point to a measured neighbour's, capped at
+    tan(max_slope_deg) (0 where empty)."""
     measured = grid.state == MEASURED
     lowest = grid.lowest if grid.lowest is not None else grid.z
     low = np.where(measured & np.isfinite(lowest), lowest, np.inf)
@@ -238,13 +265,20 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
     crossed = np.where(walls, np.inf, crossed)
     connected = measured & _ground.connected_terrain(crossed, seeds & ~walls, c, step,
                                                       float(tolerance))
-    # eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
+    # rise: the terrain's rise across one cell, what points on the terrain may span inside it.
+    # Eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
     # with one or two points (mean - sigma of two values is the lower one): such a cell (one
     # ring crossing it, e.g. the slanted line of a tilted ring over a wall or a bush) carries
-    # no evidence of being compact, so it is not
-    testable = grid.count >= MIN_COMPACT_POINTS
-    compact = connected & testable & (grid.z - low <= tolerance)
-    return connected, compact
+    # no evidence of its own; it is compact only when it lies within the terrain spanned by at
+    # least two compact neighbours, not above the highest of their lowest points (a step of a
+    # wall or a bush face is). On a slope Z sits above the lowest point (about 0.21 rise for
+    # points spread evenly over a plane), hence half the rise is allowed. Eq. 1 cannot see a
+    # vertical extent carried by a few high points; highest - lowest can.
+    use_highest = grid.highest is not None
+    compact, rise = _ground.compact_cells(
+        low, grid.z, grid.highest if use_highest else low, grid.count, connected, c, step,
+        float(tolerance), MIN_COMPACT_POINTS, SPARSE_SUPPORT, use_highest)
+    return connected, compact, rise
 
 
 # -------------------------------------------------------------------------------------------
@@ -338,7 +372,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     valid_values = valid.astype(np.float64)
     measured_cells = np.flatnonzero(measured)
     use_prior = prior is not None
-    compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), 0.0)
+    compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), np.zeros((1, 1)))
     p = z.copy()
     w = base.copy()
     # two buffers per product, alternating between passes (the previous pass stays readable);
@@ -370,7 +404,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             w_next = weight_buffers[iteration % 2]
             p_next = sample_buffers[iteration % 2]
             moved, change = _tk.robust_pass(
-                z, s, base, valid_cells, compact, use_prior, final, prior_spread, th_above,
+                z, s, base, valid_cells, compact, use_prior, prior_spread, th_above,
                 below_k * noise, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
                 equalized)
             have_ratios = True

@@ -10,7 +10,8 @@ import numpy as np
 def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill_empty=True):
     """Eq. 1 of Broggi et al. 2013 cell by cell with plain Python loops.
 
-    Returns (z, count, state) with state 0 invalid, 1 measured, 2 filled.
+    Returns (z, count, state, lowest, highest, mean) with state 0 invalid, 1 measured,
+    2 filled; lowest/highest/mean are inf/-inf/0 in cells without points.
     """
     cells = [[[] for _ in range(ny)] for _ in range(nx)]
     for x, y, z in positions:
@@ -28,10 +29,20 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
     height = np.zeros((nx, ny))
     count = np.zeros((nx, ny), np.int64)
     state = np.zeros((nx, ny), np.uint8)
+    lowest = np.full((nx, ny), np.inf)
+    highest = np.full((nx, ny), -np.inf)
+    means = np.zeros((nx, ny))
     for ix in range(nx):
         for iy in range(ny):
             zs = cells[ix][iy]
             count[ix, iy] = len(zs)
+            if zs:
+                lowest[ix, iy] = min(zs)
+                highest[ix, iy] = max(zs)
+                total = 0.0
+                for v in zs:
+                    total += v
+                means[ix, iy] = total / len(zs)
             if len(zs) >= min_points and zs:
                 total = 0.0
                 for v in zs:
@@ -61,4 +72,4 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
                         acc += v
                     height[ix, iy] = acc / len(values)
                     state[ix, iy] = 2
-    return height, count, state
+    return height, count, state, lowest, highest, means

@@ -4,7 +4,7 @@ import pytest
 from naive import grid_quantize as naive_quantize
 from o3d_terrain import GridQuantize, InputError, quantize_points
 from o3d_terrain.errors import ConfigError
-from o3d_terrain.grid import FILLED, INVALID, MEASURED
+from o3d_terrain.grid import FILLED, INVALID, MEASURED, HeightGrid
 
 
 def test_kernel_matches_reference_exactly(rng):
@@ -12,10 +12,14 @@ def test_kernel_matches_reference_exactly(rng):
     pts[::97] = np.nan  # non-finite points are skipped
     pts[5, 2] = np.inf
     grid = quantize_points(pts, cell_size=0.7, region=(-6, 6, -5, 5))
-    z, count, state = naive_quantize(pts, -6, -5, 0.7, grid.nx, grid.ny)
+    z, count, state, lowest, highest, mean = naive_quantize(pts, -6, -5, 0.7, grid.nx, grid.ny)
     np.testing.assert_array_equal(grid.z, z)
     np.testing.assert_array_equal(grid.count, count)
     np.testing.assert_array_equal(grid.state, state)
+    np.testing.assert_array_equal(grid.lowest, lowest)
+    np.testing.assert_array_equal(grid.highest, highest)
+    np.testing.assert_array_equal(grid.mean, mean)
+    assert np.isinf(highest).any() and (highest[np.isfinite(highest)] > z[np.isfinite(highest)]).any()
 
 
 @pytest.mark.parametrize("min_points,fill", [(3, True), (1, False)])
@@ -23,9 +27,13 @@ def test_kernel_matches_reference_options(rng, min_points, fill):
     pts = rng.uniform(0, 4, size=(400, 3))
     grid = quantize_points(pts, cell_size=0.5, min_points=min_points, fill_empty=fill)
     x0, _, y0, _ = grid.region
-    z, count, state = naive_quantize(pts, x0, y0, 0.5, grid.nx, grid.ny, min_points, fill)
+    z, count, state, lowest, highest, mean = naive_quantize(pts, x0, y0, 0.5, grid.nx, grid.ny,
+                                                            min_points, fill)
     np.testing.assert_array_equal(grid.z, z)
     np.testing.assert_array_equal(grid.state, state)
+    np.testing.assert_array_equal(grid.lowest, lowest)
+    np.testing.assert_array_equal(grid.highest, highest)
+    np.testing.assert_array_equal(grid.mean, mean)
 
 
 def test_equation_one_on_a_single_cell():
@@ -87,3 +95,12 @@ def test_stage_counts_skipped_points(rng):
     assert "3 non-finite" in notes and "outside the region" in notes
     grid = frame.products["grid"]
     assert grid.count.sum() == ((pts[3:, 0] <= 5)).sum()
+
+
+def test_save_load_keeps_lowest_highest_and_mean(rng, tmp_path):
+    pts = rng.uniform(0, 3, size=(200, 3))
+    grid = quantize_points(pts, cell_size=0.5)
+    grid.save(tmp_path / "g.npz")
+    back = HeightGrid.load(tmp_path / "g.npz")
+    for name in ("z", "count", "state", "lowest", "highest", "mean"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(grid, name))

@@ -156,7 +156,7 @@ def test_terrain_prior_follows_a_steep_narrow_berm_and_still_cuts_boxes():
     boxes = [(6.0, -5.0, 1.0, 1.8), (16.0, -4.0, 2.0, 1.5)]
     grid, xc, yc = analytic_grid(berm, boxes=boxes, points_per_cell=4)
     truth = berm(xc[:, None], yc[None, :])
-    plain = fit_grid_detailed(grid, control_points=(28, 28))
+    plain = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=False)
     fit = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=True)
     on_box = grid.z - truth > 0.1
     err = fit.surface(xc[:, None], yc[None, :]) - truth
@@ -217,7 +217,7 @@ def test_terrain_prior_keeps_the_berm_compact_and_not_a_single_ring_wall():
 def test_terrain_prior_fit_rejects_a_single_ring_wall_and_follows_the_berm():
     grid, wall, xc, yc = single_ring_wall_next_to_berm()
     truth = berm(xc[:, None], yc[None, :])
-    plain = fit_grid_detailed(grid, control_points=(28, 28))
+    plain = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=False)
     fit = fit_grid_detailed(grid, control_points=(28, 28), terrain_prior=True)
     assert fit.outliers[wall & (grid.z - truth > 0.5)].all()
     err = fit.surface(xc[:, None], yc[None, :]) - truth
@@ -231,3 +231,90 @@ def test_terrain_prior_options_are_checked():
     grid, _, _ = analytic_grid(hills)
     with pytest.raises(InputError, match="max_slope_deg"):
         fit_grid_detailed(grid, terrain_prior=True, max_slope_deg=95.0)
+
+
+def face_on_a_slope(rng):
+    """Points of a 30 deg slope along x (10 per 0.5 m cell on average, 2 cm noise) and a wall
+    face along x at y = -3.9 m: each wall cell holds the slope's points and two points on the
+    face, 0.35 m and 0.6 m above the ground there, so eq. 1 stays at the lowest point."""
+    slope = np.tan(np.radians(30.0))
+    xy = rng.uniform([0, -6], [12, 6], size=(24 * 24 * 10, 2))
+    z = slope * xy[:, 0] + rng.normal(0, 0.02, len(xy))
+    wall_x = np.arange(2.1, 10.0, 0.5)
+    face = np.column_stack([np.repeat(wall_x, 2), np.full(2 * len(wall_x), -3.9),
+                            slope * np.repeat(wall_x, 2) + np.tile([0.35, 0.6], len(wall_x))])
+    grid = quantize_points(np.vstack([np.column_stack([xy, z]), face]), cell_size=0.5,
+                           region=(0, 12, -6, 6))
+    wall = np.zeros(grid.shape, bool)
+    wall[(wall_x / 0.5).astype(int), int((-3.9 + 6) / 0.5)] = True
+    return grid, wall
+
+
+def test_terrain_prior_compact_cells_have_no_vertical_extent_beyond_the_local_rise(rng):
+    from o3d_terrain.terrain import terrain_prior_mask
+
+    grid, wall = face_on_a_slope(rng)
+    connected, compact = terrain_prior_mask(grid)
+    assert grid.count[wall].min() >= 5  # dense: the point-count rule says nothing
+    assert (grid.z[wall] - grid.lowest[wall] < 0.09).all()  # nor does eq. 1
+    assert connected[wall].all()
+    assert not compact[wall].any()
+    # the slope rises 0.29 m across a cell: its cells hold that extent and stay compact
+    slope_cells = ~wall & (grid.count >= 3)
+    assert compact[slope_cells].mean() > 0.98
+    # without the highest point per cell the extent is not tested (grids built by hand)
+    bare = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, grid.count, grid.state,
+                      grid.lowest)
+    assert terrain_prior_mask(bare)[1][wall].all()
+
+
+
+def test_terrain_prior_samples_of_compact_cells_are_not_biased_low_on_a_slope(rng):
+    # eq. 1 (mean - sigma) sits 0.21 rise below the cell's centre on a plane of rise = 0.29 m
+    # per cell (30 deg); compact cells use max(eq. 1, mean - noise_floor): bias <= noise_floor
+    slope = np.tan(np.radians(30.0))
+    xy = rng.uniform([0, -6], [12, 6], size=(24 * 24 * 10, 2))
+    z = slope * xy[:, 0] + rng.normal(0, 0.02, len(xy))
+    grid = quantize_points(np.column_stack([xy, z]), cell_size=0.5)
+    bias = {}
+    for prior in (True, False):
+        surface = fit_grid_detailed(grid, terrain_prior=prior, noise_floor=0.03).surface
+        bias[prior] = np.nanmean(surface(xy[:, 0], xy[:, 1]) - slope * xy[:, 0])
+    assert bias[False] < -0.05  # eq. 1: about -0.21 * 0.29 m
+    assert -0.03 - 0.005 < bias[True] < 0.0
+
+
+def test_terrain_prior_sparse_cells_between_compact_ones_are_compact():
+    from o3d_terrain.terrain import terrain_prior_mask
+
+    # the berm seen at a grazing angle: every other row of cells along y holds one point
+    grid, xc, yc = analytic_grid(berm, points_per_cell=4)
+    count = grid.count.copy()
+    count[:, 1::2] = 1
+    sparse_grid = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, count, grid.state)
+    connected, compact = terrain_prior_mask(sparse_grid)
+    assert compact.all()
+    # alone (no compact neighbour), the same cells say nothing
+    count[:] = 1
+    lone = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, count, grid.state)
+    assert not terrain_prior_mask(lone)[1].any()
+
+
+def test_default_fit_follows_a_steep_ramp_that_plain_robust_weights_reject():
+    # a 35 deg ramp rising sideways next to the default obstacles (scene not used to set any
+    # parameter): the plain robust weights cut its top off, the terrain prior follows it
+    from o3d_terrain.synthetic import Plane, Ramp, Scene, default_obstacles, sample_lidar
+
+    scene = Scene("ramp35_side", (Plane(), Ramp(0, 4, 90, 35.0, 5.0)), default_obstacles(0))
+    cloud = sample_lidar(scene, seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    usable = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
+    terrain = usable & ~cloud.is_obstacle
+    grid = quantize_points(p[usable], cell_size=0.5)
+    truth = cloud.terrain_height(p[terrain, 0], p[terrain, 1])
+    rmse = {}
+    for prior in (True, False):
+        surface = fit_grid(grid, terrain_prior=prior)
+        err = surface(p[terrain, 0], p[terrain, 1]) - truth
+        rmse[prior] = np.sqrt(np.nanmean(err ** 2))
+    assert rmse[True] < 0.05 < 0.1 < rmse[False]

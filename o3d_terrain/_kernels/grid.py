@@ -53,19 +53,22 @@ def cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny):
 
 @numba.njit(cache=True)
 def quantize(cells, z, nx, ny, min_points, fill_empty):
-    """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts and state.
+    """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
+    and mean z.
 
     ``cells`` from :func:`cell_indices`; points with a negative cell or non-finite z are skipped
     and counted: the result ends with (number non-finite, number outside the grid).
     Cells with fewer than ``min_points`` points are empty. Empty cells take the mean of the
     8-neighbour *measured* cells (state FILLED) when ``fill_empty``; otherwise, or with no
     measured neighbour, they are INVALID with Z = 0. Sums are taken in point order (a plain
-    reference implementation reproduces them exactly).
+    reference implementation reproduces them exactly). Lowest and highest z are inf and -inf,
+    the mean 0, in cells without points (whatever ``min_points``).
     """
     m = nx * ny
     count = np.zeros(m, np.int64)
     total = np.zeros(m)
     lowest = np.full(m, np.inf)
+    highest = np.full(m, -np.inf)
     nonfinite = 0
     outside = 0
     for k in range(cells.shape[0]):
@@ -78,8 +81,9 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
             continue
         count[c] += 1
         total[c] += z[k]
-        if z[k] < lowest[c]:
-            lowest[c] = z[k]
+        v = z[k]  # branch-free min/max (cells hold few points: the branches mispredict)
+        lowest[c] = min(lowest[c], v)
+        highest[c] = max(highest[c], v)
     mean = np.zeros(m)
     for c in range(m):
         if count[c] > 0:
@@ -124,6 +128,8 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
         count.reshape(nx, ny),
         state.reshape(nx, ny),
         lowest.reshape(nx, ny),
+        highest.reshape(nx, ny),
+        mean.reshape(nx, ny),
         nonfinite,
         outside,
     )

@@ -98,56 +98,60 @@ def cone_fill(height, measured, cell_size, gap_slope):
 
 
 @numba.njit(cache=True)
-def _sliding_min_1d(values, radius, out):
-    """out[i] = min(values[i - radius : i + radius + 1]) (van Herk / Gil-Werman, O(n))."""
-    n = values.shape[0]
-    w = 2 * radius + 1
-    prefix = np.empty(n)
-    suffix = np.empty(n)
-    for start in range(0, n, w):
-        stop = min(start + w, n)
-        prefix[start] = values[start]
-        for k in range(start + 1, stop):
-            prefix[k] = min(prefix[k - 1], values[k])
-        suffix[stop - 1] = values[stop - 1]
-        for k in range(stop - 2, start - 1, -1):
-            suffix[k] = min(suffix[k + 1], values[k])
-    for i in range(n):
-        lo = max(i - radius, 0)
-        hi = min(i + radius, n - 1)
-        # [lo, hi] spans at most two blocks: the suffix of lo's block and the prefix of hi's
-        if lo // w == hi // w:
-            v = values[lo]
-            for k in range(lo + 1, hi + 1):
-                v = min(v, values[k])
-            out[i] = v
-        else:
-            out[i] = min(suffix[lo], prefix[hi])
-
-
-@numba.njit(cache=True, inline="always")
-def _sliding_min_rows(values, radius, out):
-    """out[i, :] = :func:`_sliding_min_1d` of values[i, :], row by row through a buffer."""
-    nx, ny = values.shape
-    buf_in = np.empty(ny)
-    buf_out = np.empty(ny)
-    for i in range(nx):
-        for j in range(ny):
-            buf_in[j] = values[i, j]
-        _sliding_min_1d(buf_in, radius, buf_out)
-        for j in range(ny):
-            out[i, j] = buf_out[j]
-
-
-@numba.njit(cache=True)
 def window_min(values, radius):
-    """Minimum over the (2 radius + 1)^2 square window around every cell (separable: along
-    rows, then along columns through the transposed views)."""
+    """Minimum over the (2 radius + 1)^2 square window around every cell (clipped at the
+    borders). Separable van Herk / Gil-Werman: per axis, block prefix and suffix minima over
+    blocks of w = 2 radius + 1 cells; the window [lo, hi] of a cell spans the suffix of lo's
+    block and the prefix of hi's, or, within one block (a window clipped at a border), starts
+    at the block's start or ends at the array's end. O(cells) whatever the radius; both
+    passes run along rows (contiguous)."""
     nx, ny = values.shape
+    w = 2 * radius + 1
+    prefix = np.empty((nx, ny))
+    suffix = np.empty((nx, ny))
     rows = np.empty((nx, ny))
-    _sliding_min_rows(values, radius, rows)
+    for i in range(nx):  # along y, row by row
+        for start in range(0, ny, w):
+            stop = min(start + w, ny)
+            prefix[i, start] = values[i, start]
+            for k in range(start + 1, stop):
+                prefix[i, k] = min(prefix[i, k - 1], values[i, k])
+            suffix[i, stop - 1] = values[i, stop - 1]
+            for k in range(stop - 2, start - 1, -1):
+                suffix[i, k] = min(suffix[i, k + 1], values[i, k])
+        for j in range(ny):
+            lo = max(j - radius, 0)
+            hi = min(j + radius, ny - 1)
+            if lo // w != hi // w:
+                rows[i, j] = min(suffix[i, lo], prefix[i, hi])
+            elif lo % w == 0:
+                rows[i, j] = prefix[i, hi]
+            else:
+                rows[i, j] = suffix[i, lo]
+    for start in range(0, nx, w):  # along x, whole rows at a time
+        stop = min(start + w, nx)
+        for j in range(ny):
+            prefix[start, j] = rows[start, j]
+            suffix[stop - 1, j] = rows[stop - 1, j]
+        for k in range(start + 1, stop):
+            for j in range(ny):
+                prefix[k, j] = min(prefix[k - 1, j], rows[k, j])
+        for k in range(stop - 2, start - 1, -1):
+            for j in range(ny):
+                suffix[k, j] = min(suffix[k + 1, j], rows[k, j])
     out = np.empty((nx, ny))
-    _sliding_min_rows(rows.T, radius, out.T)
+    for i in range(nx):
+        lo = max(i - radius, 0)
+        hi = min(i + radius, nx - 1)
+        if lo // w != hi // w:
+            for j in range(ny):
+                out[i, j] = min(suffix[lo, j], prefix[hi, j])
+        elif lo % w == 0:
+            for j in range(ny):
+                out[i, j] = prefix[hi, j]
+        else:
+            for j in range(ny):
+                out[i, j] = suffix[lo, j]
     return out
 
 
@@ -191,3 +195,99 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
                     queue[tail] = a * ny + b
                     tail += 1
     return accepted
+
+
+@numba.njit(cache=True)
+def steepest_neighbour_slope(height, cell_size):
+    """Per cell, the steepest slope (rise over run, ≥ 0) from it to any 8-neighbour:
+    max |height[n] - height[c]| / d(c, n) over neighbours n with finite height; 0 for a cell
+    without finite neighbours, and for inf (empty) cells."""
+    nx, ny = height.shape
+    out = np.zeros((nx, ny))
+    diagonal = cell_size * _SQRT2
+    for i in range(nx):
+        for j in range(ny):
+            h = height[i, j]
+            if not np.isfinite(h):
+                continue
+            best = 0.0
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0):
+                        continue
+                    hn = height[a, b]
+                    if not np.isfinite(hn):
+                        continue
+                    d = cell_size if (di == 0 or dj == 0) else diagonal
+                    v = abs(hn - h) / d
+                    if v > best:
+                        best = v
+            out[i, j] = best
+    return out
+
+
+@numba.njit(cache=True)
+def below_compact_neighbours(height, candidate, compact, tolerance, min_neighbours):
+    """Candidate cells whose height is at most tolerance above the highest of their compact
+    8-neighbours, with at least ``min_neighbours`` such neighbours: cells that lie within the
+    terrain their compact neighbours span (a sparse cell on a slope between a crest and a foot)
+    and not above it (the step of a wall or a bush face)."""
+    nx, ny = height.shape
+    out = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            if not candidate[i, j]:
+                continue
+            top = -np.inf
+            n = 0
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0) or not compact[a, b]:
+                        continue
+                    n += 1
+                    if height[a, b] > top:
+                        top = height[a, b]
+            out[i, j] = n >= min_neighbours and height[i, j] <= top + tolerance
+    return out
+
+
+@numba.njit(cache=True)
+def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_slope,
+                  tolerance, min_points, support, use_highest):
+    """The compact cells of a connected terrain and the terrain's rise across each cell
+    (o3d_terrain.terrain.terrain_prior_mask), in two passes over the grid.
+
+    rise = cell_size * min(:func:`steepest_neighbour_slope` of ``low``, max_rise_slope).
+    Dense compact: connected, count >= min_points, sample - low <= tolerance + rise / 2 and
+    (with ``use_highest``) highest - low <= tolerance + rise. Sparse compact: connected,
+    count < min_points, the same extent test, and :func:`below_compact_neighbours` of the
+    dense compact cells with ``support``. Returns (compact, rise)."""
+    nx, ny = low.shape
+    rise = steepest_neighbour_slope(low, cell_size)
+    dense = np.zeros((nx, ny), np.bool_)
+    sparse = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            r = cell_size * min(rise[i, j], max_rise_slope)
+            rise[i, j] = r
+            if not connected[i, j]:
+                continue
+            extent_ok = (not use_highest) or highest[i, j] - low[i, j] <= tolerance + r
+            if count[i, j] >= min_points:
+                dense[i, j] = extent_ok and sample[i, j] - low[i, j] <= tolerance + 0.5 * r
+            else:
+                sparse[i, j] = extent_ok
+    compact = below_compact_neighbours(low, sparse, dense, tolerance, support)
+    for i in range(nx):
+        for j in range(ny):
+            if dense[i, j]:
+                compact[i, j] = True
+    return compact, rise

@@ -206,7 +206,7 @@ def residual_scale(z, surface, measured_cells, floor):
 
 
 @numba.njit(cache=True)
-def robust_pass(z, surface, base, valid_cells, compact, use_prior, final, prior_spread,
+def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
                 th_above, th_below, clip_k, previous_samples, previous_weights, has_previous,
                 weights, ratios, samples, equalized):
     """Sample weights, control-point weight ratios and equalized samples of one pass, written
@@ -216,8 +216,9 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, final, prior_
 
     On a valid cell, r = z - surface: t = r / th_above above the surface, -r / th_below
     below; weight w = base / (1 + t^4) (the bounded form of Broggi et al. eq. 3 with
-    alpha = 4). With ``use_prior``, compact cells above the surface keep w = base on coarse
-    layouts and on the ``final`` one get t = r / (th_above + prior_spread). Ratio = w / base.
+    alpha = 4). With ``use_prior``, compact cells above the surface get
+    t = r / (th_above + prior_spread[c]) (a per-cell widening, (m0, m1); read only at compact
+    cells). Ratio = w / base.
     Equalization: cells (not compact ones with the prior) with z > surface + clip_k * th_above
     are clipped onto that limit; the others keep z.
 
@@ -235,7 +236,7 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, final, prior_
     ppf = previous_samples.ravel()
     pwf = previous_weights.ravel()
     band = clip_k * th_above
-    prior_threshold = th_above + prior_spread
+    spf = prior_spread.ravel()
     moved = 0
     change = 0.0
     for k in range(valid_cells.shape[0]):
@@ -252,12 +253,9 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, final, prior_
         w = b / (1.0 + t2 * t2)
         keep = use_prior and cf[c]
         if keep and r > 0.0:
-            if final:
-                tc = r / prior_threshold
-                tc2 = tc * tc
-                w = b / (1.0 + tc2 * tc2)
-            else:
-                w = b
+            tc = r / (th_above + spf[c])
+            tc2 = tc * tc
+            w = b / (1.0 + tc2 * tc2)
         wf[c] = w
         rf[c] = w if b == 1.0 else w / max(b, 1e-12)
         limit = s + band

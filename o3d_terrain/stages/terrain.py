@@ -49,9 +49,10 @@ class RationalBSplineTerrain(Stage):
                                 help="smallest noise threshold of the robust weights")
     rational: bool = option(True, help="derive control-point weights R from the sample weights")
     terrain_prior: bool = option(
-        False,
-        help="robust method: keep cells connected to the ground under the slope limit as "
-             "terrain (steep berms, ditch walls); see docs/algorithm.md for the trade-off",
+        True,
+        help="robust method: cells connected to the ground under the slope limit whose points "
+             "have no vertical extent beyond the local terrain rise are not rejected as "
+             "obstacles (steep berms, ditch walls); false = plain robust weights",
     )
     max_slope_deg: float = option(45.0, unit="deg", rule=Range(1, 89),
                                   help="terrain_prior: steepest terrain the prior accepts")

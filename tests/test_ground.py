@@ -1,0 +1,74 @@
+"""Kernels of the terrain prior (o3d_terrain/_kernels/ground.py) against plain loops."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from o3d_terrain._kernels.ground import (below_compact_neighbours, compact_cells,
+                                         steepest_neighbour_slope, window_min)
+
+
+@pytest.mark.parametrize("shape,radius", [((31, 20), 4), ((7, 5), 3), ((30, 9), 1),
+                                          ((5, 40), 10), ((1, 1), 2), ((9, 18), 4),
+                                          ((10, 19), 4)])
+def test_window_min_matches_a_plain_loop(rng, shape, radius):
+    values = rng.normal(size=shape)
+    values[rng.uniform(size=shape) < 0.3] = np.inf  # empty cells
+    got = window_min(values, radius)
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            window = values[max(0, i - radius):i + radius + 1, max(0, j - radius):j + radius + 1]
+            assert got[i, j] == window.min()
+
+
+def test_steepest_neighbour_slope_matches_a_plain_loop(rng):
+    h = rng.normal(0, 1, (9, 7))
+    h[rng.uniform(size=h.shape) < 0.2] = np.inf
+    got = steepest_neighbour_slope(h, 0.5)
+    for i in range(9):
+        for j in range(7):
+            best = 0.0
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    a, b = i + di, j + dj
+                    if (di or dj) and 0 <= a < 9 and 0 <= b < 7 and np.isfinite(h[a, b]) \
+                            and np.isfinite(h[i, j]):
+                        best = max(best, abs(h[a, b] - h[i, j]) / (0.5 * np.hypot(di, dj)))
+            assert got[i, j] == pytest.approx(best)
+
+
+@pytest.mark.parametrize("need", [1, 2])
+def test_below_compact_neighbours_matches_a_plain_loop(rng, need):
+    h = rng.normal(0, 0.2, (12, 9))
+    candidate = rng.uniform(size=h.shape) < 0.5
+    compact = ~candidate & (rng.uniform(size=h.shape) < 0.7)
+    got = below_compact_neighbours(h, candidate, compact, 0.09, need)
+    for i in range(12):
+        for j in range(9):
+            tops = [h[a, b] for a in range(i - 1, i + 2) for b in range(j - 1, j + 2)
+                    if (a, b) != (i, j) and 0 <= a < 12 and 0 <= b < 9 and compact[a, b]]
+            expected = candidate[i, j] and len(tops) >= need and h[i, j] <= max(tops) + 0.09
+            assert got[i, j] == expected
+
+
+@pytest.mark.parametrize("use_highest", [True, False])
+def test_compact_cells_matches_its_definition(rng, use_highest):
+    shape = (14, 11)
+    low = rng.normal(0, 0.3, shape)
+    low[rng.uniform(size=shape) < 0.1] = np.inf
+    sample = low + rng.uniform(0, 0.2, shape)
+    highest = low + rng.uniform(0, 0.6, shape)
+    count = rng.integers(1, 6, shape)
+    connected = np.isfinite(low) & (rng.uniform(size=shape) < 0.9)
+    compact, rise = compact_cells(low, sample, highest, count, connected, 0.5, 1.0, 0.09, 3, 2,
+                                  use_highest)
+    expected_rise = 0.5 * np.minimum(steepest_neighbour_slope(low, 0.5), 1.0)
+    np.testing.assert_allclose(rise, expected_rise)
+    with np.errstate(invalid="ignore"):  # inf - inf at empty cells (never connected)
+        extent = (highest - low <= 0.09 + expected_rise) if use_highest else np.ones(shape, bool)
+        dense = connected & (count >= 3) & (sample - low <= 0.09 + 0.5 * expected_rise) & extent
+    sparse = connected & (count < 3) & extent
+    expected = dense | below_compact_neighbours(low, sparse, dense, 0.09, 2)
+    assert np.array_equal(compact, expected)
+    assert dense.any() and (expected & ~dense).any()  # both kinds occur
