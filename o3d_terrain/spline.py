@@ -415,28 +415,40 @@ class GridBasis:
         return _tk.grid_project(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
                                 np.ascontiguousarray(values, dtype=np.float64), self.n0, self.n1)
 
+    def evaluate_cells(self, control: np.ndarray, weights: np.ndarray, cells: np.ndarray,
+                       out: np.ndarray) -> np.ndarray:
+        """Rational surface at the cells ``cells`` (increasing flat indices into the (m0, m1)
+        grid) written into ``out`` (C-ordered (m0, m1), other cells left as they are); the
+        values of :meth:`evaluate` there."""
+        return _bs.grid_rational_cells(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
+                                       np.ascontiguousarray(weights * control),
+                                       np.ascontiguousarray(weights, dtype=np.float64), cells,
+                                       out)
+
     def solve_tensor(self, z: np.ndarray, sample_weights: np.ndarray,
                      rational_weights: np.ndarray | None = None, smoothing: float = 0.0,
-                     ridge: float = 1e-9) -> np.ndarray:
+                     ridge: float = 1e-9, cells: np.ndarray | None = None) -> np.ndarray:
         """Exact weighted least squares over all cells at once, with an optional thin-plate
         penalty ``smoothing`` (relative to the mean data weight per control point).
 
         Minimises sum_c W_c (Z_c - S(c))^2 + lambda E_thin_plate(Q) over Q for fixed R. With R,
         S is linear in Q through the rational basis R_ab N_a N_b / D, so the fit is consistent
-        with rational evaluation.
+        with rational evaluation. ``cells``: increasing flat indices of the cells that may have
+        a weight > 0 (the others must have weight <= 0); None = found here.
         """
-        args = (self.spans_x, self.basis_x, self.spans_y, self.basis_y)
+        z = np.ascontiguousarray(z, dtype=np.float64)
+        sample_weights = np.ascontiguousarray(sample_weights, dtype=np.float64)
+        if cells is None:
+            cells = np.flatnonzero(sample_weights > 0)
         r_in = np.zeros((0, 0)) if rational_weights is None else \
             np.ascontiguousarray(rational_weights, dtype=np.float64)
-        mw, rv, weight_sum = _bs.fit_cell_weights(
-            *args, np.ascontiguousarray(z, dtype=np.float64),
-            np.ascontiguousarray(sample_weights, dtype=np.float64), r_in)
-        band, rhs = _bs.tensor_normal_band(*args, mw, rv, self.n0, self.n1, self.degree,
-                                           self.bandwidth)
+        lower, rhs, weight_sum = _bs.normal_band_cells(
+            self.spans_x, self.basis_x, self.spans_y, self.basis_y, z, sample_weights, r_in,
+            cells, self.n0, self.n1, self.degree, self.bandwidth)
+        band = lower.T  # LAPACK lower band storage, Fortran order: no copy for dpbsv
         if rational_weights is not None:
-            r = np.ascontiguousarray(rational_weights, dtype=np.float64).ravel()
-            _bs.scale_band(band, r)
-            rhs *= r
+            _bs.scale_band(band, r_in.ravel())
+            rhs *= r_in.ravel()
         scale = max(float(band[0].mean()), 1e-12)
         if smoothing > 0:
             data_per_ctrl = weight_sum / (self.n0 * self.n1)

@@ -454,36 +454,75 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
 # normal equations of a tensor-product fit on a grid, by rows
 
 
-@numba.njit(cache=True)
-def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_values, n0, n1,
-                       degree, bandwidth):
-    """Band of sum_c w_c b_c b_c^T and the vector sum_c v_c b_c over grid cells c = (i, j),
-    b_c[a * n1 + b] = N_a(x_i) N_b(y_j), in LAPACK lower band storage ``band[d, k] = A[k + d, k]``.
+@numba.njit(cache=True, error_model="numpy")
+def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights,
+                      cells, n0, n1, degree, bandwidth):
+    """Normal equations of the weighted (rational) least-squares fit, over the cells ``cells``
+    only (flat indices into the C-ordered (m0, m1) grids, increasing; every other cell must
+    have a sample weight <= 0).
 
-    The tensor product is used row by row: for grid row i, T_i = sum_j w_ij by_j by_j^T
-    (banded, n1 x n1) and r_i = sum_j v_ij by_j are gathered first, then
-    A[(a, b), (a', b')] += bx_i[a] bx_i[a'] T_i[b, b'] for the degree + 1 non-zero bx_i[a].
-    That is O(m0 m1 p^2 + m0 n1 p^3) instead of O(m0 m1 p^4) for the cell-by-cell sum; both
-    give the same matrix up to rounding. Cells with w = v = 0 are skipped.
+    Per cell: w = sample weight (cells with w <= 0 or NaN add nothing), v = w z; with
+    control-point weights R (``rational_weights`` of size > 0) the rational basis divides by
+    D = Bx R By^T at the cell (contracted along y once per column): w / D^2 and w z / D.
+    The matrix sum_c w_c b_c b_c^T, b_c[a * n1 + b] = N_a(x_i) N_b(y_j), is built row by row:
+    for grid row i, T_i = sum_j w_ij by_j by_j^T (banded, n1 x n1) and r_i = sum_j v_ij by_j
+    first, then A[(a, b), (a', b')] += bx_i[a] bx_i[a'] T_i[b, b'] for the degree + 1
+    non-zero bx_i[a]: O(cells p^2 + rows n1 p^3) instead of O(cells p^4).
+
+    Returns ``(lower, rhs, total)``: ``lower[k, d] = A[k + d, k]``, shape
+    (n0 n1, bandwidth + 1) (its transpose is LAPACK's lower band storage in Fortran order, so
+    ``lower.T`` goes to ``dpbsv`` without a copy), the right-hand side and the sum of the
+    weights > 0 (in cell order). Each entry of ``lower`` is updated once per grid row, so the
+    loop order within a row does not change the values.
     """
     p = degree
-    size = n0 * n1
-    lower = np.zeros((size, bandwidth + 1))  # lower[k, d] = A[k + d, k]
-    rhs = np.zeros(size)
-    t = np.zeros((n1, p + 1))  # t[b, d] = T_i[b, b + d]
-    r = np.zeros(n1)
-    m0 = spans_x.shape[0]
     m1 = spans_y.shape[0]
-    for i in range(m0):
+    rational = rational_weights.shape[0] > 0
+    size = n0 * n1
+    lower = np.zeros((size, bandwidth + 1))
+    rhs = np.zeros(size)
+    total = 0.0
+    col_d = np.zeros((m1, rational_weights.shape[0]))
+    if rational:
+        for j in range(m1):
+            sy = spans_y[j] - p
+            for a in range(n0):
+                acc = 0.0
+                for b in range(p + 1):
+                    acc += basis_y[j, b] * rational_weights[a, sy + b]
+                col_d[j, a] = acc
+    zf = z.ravel()
+    wf = sample_weights.ravel()
+    t = np.zeros((n1, p + 1))  # t[b, d] = T_i[b, b + d]
+    tf = np.zeros((n1, 2 * p + 1))
+    r = np.zeros(n1)
+    count = cells.shape[0]
+    k = 0
+    while k < count:
+        i = cells[k] // m1  # one integer division per grid row
+        first = i * m1
+        end = first + m1
         sx = spans_x[i]
-        if sx < 0:
-            continue
         b_lo = n1
         b_hi = -1
-        for j in range(m1):
-            w = matrix_weights[i, j]
-            v = rhs_values[i, j]
-            if w == 0.0 and v == 0.0:
+        while k < count and cells[k] < end:
+            c = cells[k]
+            k += 1
+            w = wf[c]
+            if not w > 0.0:
+                continue
+            total += w
+            j = c - first
+            wz = w * zf[c]
+            if rational:
+                acc = 0.0
+                for a in range(p + 1):
+                    acc += basis_x[i, a] * col_d[j, sx - p + a]
+                w = w / (acc * acc)
+                v = wz / acc
+            else:
+                v = wz
+            if sx < 0:
                 continue
             sy = spans_y[j]
             if sy < 0:
@@ -493,6 +532,30 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
                 b_lo = base
             if sy > b_hi:
                 b_hi = sy
+            if p == 3:  # the loop below unrolled for the cubic case (same operations)
+                y0 = basis_y[j, 0]
+                y1 = basis_y[j, 1]
+                y2 = basis_y[j, 2]
+                y3 = basis_y[j, 3]
+                r[base] += v * y0
+                r[base + 1] += v * y1
+                r[base + 2] += v * y2
+                r[base + 3] += v * y3
+                wb = w * y0
+                t[base, 0] += wb * y0
+                t[base, 1] += wb * y1
+                t[base, 2] += wb * y2
+                t[base, 3] += wb * y3
+                wb = w * y1
+                t[base + 1, 0] += wb * y1
+                t[base + 1, 1] += wb * y2
+                t[base + 1, 2] += wb * y3
+                wb = w * y2
+                t[base + 2, 0] += wb * y2
+                t[base + 2, 1] += wb * y3
+                wb = w * y3
+                t[base + 3, 0] += wb * y3
+                continue
             for b in range(p + 1):
                 yb = basis_y[j, b]
                 r[base + b] += v * yb
@@ -501,6 +564,14 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
                     t[base + b, d] += wb * basis_y[j, b + d]
         if b_hi < 0:
             continue
+        # the full symmetric band of T_i: tf[b, p + e] = T_i[b, b + e], e = -p .. p (zero
+        # outside rows b_lo .. b_hi, so fixed-length loops add only zeros beyond them: each
+        # entry of ``lower`` is updated once per grid row, the same sums as entry by entry)
+        for b in range(b_lo, b_hi + 1):
+            for d in range(p + 1):
+                tf[b, p + d] = t[b, d]
+                if b + d < n1:
+                    tf[b + d, p - d] = t[b, d]
         for a1 in range(p + 1):
             row1 = (sx - p + a1) * n1
             xa1 = basis_x[i, a1]
@@ -508,23 +579,68 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
                 rhs[row1 + b] += xa1 * r[b]
             f = xa1 * xa1
             for b in range(b_lo, b_hi + 1):
-                for d in range(min(p + 1, b_hi + 1 - b)):
-                    lower[row1 + b, d] += f * t[b, d]
+                for d in range(p + 1):
+                    lower[row1 + b, d] += f * tf[b, p + d]
             for a2 in range(a1 + 1, p + 1):
                 f = xa1 * basis_x[i, a2]
-                off = (a2 - a1) * n1
+                off = (a2 - a1) * n1 - p
                 for b1 in range(b_lo, b_hi + 1):
                     k1 = row1 + b1
-                    # b2 < b1: T[b2, b1 - b2]; b2 >= b1: T[b1, b2 - b1]
-                    for b2 in range(max(b_lo, b1 - p), b1):
-                        lower[k1, off + b2 - b1] += f * t[b2, b1 - b2]
-                    for b2 in range(b1, min(b_hi + 1, b1 + p + 1)):
-                        lower[k1, off + b2 - b1] += f * t[b1, b2 - b1]
+                    for e in range(2 * p + 1):
+                        lower[k1, off + e] += f * tf[b1, e]
         for b in range(b_lo, b_hi + 1):
             r[b] = 0.0
             for d in range(p + 1):
                 t[b, d] = 0.0
-    return np.ascontiguousarray(lower.T), rhs
+            for e in range(2 * p + 1):
+                tf[b, e] = 0.0
+    return lower, rhs, total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominator, cells,
+                        out):
+    """:func:`grid_rational` written into ``out`` (C-ordered (m0, m1)) at the cells ``cells``
+    (flat indices) only; other cells of ``out`` are left as they are. Same operations per
+    cell as :func:`grid_rational`, so the same values."""
+    p = basis_x.shape[1] - 1
+    m1 = spans_y.shape[0]
+    n0 = numerator.shape[0]
+    rational = denominator.shape[0] > 0
+    col_n = np.zeros((m1, n0))
+    col_d = np.zeros((m1, n0)) if rational else np.zeros((0, 0))
+    for j in range(m1):
+        sy = spans_y[j] - p
+        for a in range(n0):
+            acc_n = 0.0
+            acc_d = 0.0
+            for b in range(p + 1):
+                acc_n += basis_y[j, b] * numerator[a, sy + b]
+                if rational:
+                    acc_d += basis_y[j, b] * denominator[a, sy + b]
+            col_n[j, a] = acc_n
+            if rational:
+                col_d[j, a] = acc_d
+    of = out.ravel()
+    count = cells.shape[0]
+    k = 0
+    while k < count:
+        i = cells[k] // m1  # one integer division per grid row
+        first = i * m1
+        end = first + m1
+        sx = spans_x[i] - p
+        while k < count and cells[k] < end:
+            c = cells[k]
+            k += 1
+            j = c - first
+            acc_n = 0.0
+            acc_d = 0.0
+            for a in range(p + 1):
+                acc_n += basis_x[i, a] * col_n[j, sx + a]
+                if rational:
+                    acc_d += basis_x[i, a] * col_d[j, sx + a]
+            of[c] = acc_n / acc_d if rational else acc_n
+    return out
 
 
 @numba.njit(cache=True, inline="always")
@@ -717,50 +833,3 @@ def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, ma
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
             out[i, j] = acc_n / acc_d if rational else acc_n
     return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def fit_cell_weights(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights):
-    """Per-cell matrix weights and right-hand-side values of the (rational) least-squares fit.
-
-    w = sample weight where > 0, else 0 (NaN too); v = w z where w > 0. With control-point
-    weights R (``rational_weights`` of size > 0) the rational basis divides by the
-    denominator D = Bx R By^T at the cell: returns (w / D^2, w z / D); else (w, w z). Also
-    returns the sum of w (taken in cell order). D is computed with the operations of
-    :func:`grid_rational`.
-    """
-    p = basis_x.shape[1] - 1
-    m0 = spans_x.shape[0]
-    m1 = spans_y.shape[0]
-    rational = rational_weights.shape[0] > 0
-    matrix_w = np.zeros((m0, m1))
-    rhs_v = np.zeros((m0, m1))
-    total = 0.0
-    col_d = np.zeros((m1, rational_weights.shape[0]))
-    if rational:
-        n0 = rational_weights.shape[0]
-        for j in range(m1):
-            sy = spans_y[j] - p
-            for a in range(n0):
-                acc = 0.0
-                for b in range(p + 1):
-                    acc += basis_y[j, b] * rational_weights[a, sy + b]
-                col_d[j, a] = acc
-    for i in range(m0):
-        sx = spans_x[i] - p
-        for j in range(m1):
-            w = sample_weights[i, j]
-            if not w > 0.0:
-                continue
-            total += w
-            wz = w * z[i, j]
-            if rational:
-                acc = 0.0
-                for a in range(p + 1):
-                    acc += basis_x[i, a] * col_d[j, sx + a]
-                matrix_w[i, j] = w / (acc * acc)
-                rhs_v[i, j] = wz / acc
-            else:
-                matrix_w[i, j] = w
-                rhs_v[i, j] = wz
-    return matrix_w, rhs_v, total
