@@ -324,6 +324,90 @@ def _basis_values(span, t, degree, knots, n_ctrl, inv_width, out, left, right):
         basis_funs_scratch(span, t, degree, knots, out, left, right)
 
 
+@numba.njit(cache=True, inline="always")
+def _cubic_basis_scaled(span, t, knots, n_ctrl, inv_width):
+    """The 4 non-zero cubic basis functions at t as scalars, all times one common factor:
+    on interior uniform spans 6 times the closed form of :func:`_basis_values` (its divisions
+    by 6 left out), elsewhere A2.2 unrolled (the same operations, factor 1). Only for ratios
+    in which the factor cancels (the rational surface A / D)."""
+    if span >= 5 and span <= n_ctrl - 3:
+        u = (t - knots[span]) * inv_width
+        v = 1.0 - u
+        u2 = u * u
+        u3 = u2 * u
+        return (v * v * v, 3.0 * u3 - 6.0 * u2 + 4.0, -3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0, u3)
+    left1 = t - knots[span]
+    right1 = knots[span + 1] - t
+    temp = 1.0 / (right1 + left1)
+    o0 = 0.0 + right1 * temp
+    o1 = left1 * temp
+    left2 = t - knots[span - 1]
+    right2 = knots[span + 2] - t
+    temp = o0 / (right1 + left2)
+    o0 = 0.0 + right1 * temp
+    saved = left2 * temp
+    temp = o1 / (right2 + left1)
+    o1 = saved + right2 * temp
+    o2 = left1 * temp
+    left3 = t - knots[span - 2]
+    right3 = knots[span + 3] - t
+    temp = o0 / (right1 + left3)
+    o0 = 0.0 + right1 * temp
+    saved = left3 * temp
+    temp = o1 / (right2 + left2)
+    o1 = saved + right2 * temp
+    saved = left2 * temp
+    temp = o2 / (right3 + left1)
+    o2 = saved + right3 * temp
+    o3 = left1 * temp
+    return o0, o1, o2, o3
+
+
+@numba.njit(cache=True, inline="always")
+def _cubic_row(control, weights, ia, sy, y0, y1, y2, y3):
+    """Row ``ia`` of :func:`_rational_sums` for degree 3 (the same operations): the sums over
+    the 4 control points of span ``sy`` of R Q N_b and R N_b."""
+    r = weights[ia, sy - 3] * y0
+    ra = 0.0 + r * control[ia, sy - 3]
+    rd = 0.0 + r
+    r = weights[ia, sy - 2] * y1
+    ra += r * control[ia, sy - 2]
+    rd += r
+    r = weights[ia, sy - 1] * y2
+    ra += r * control[ia, sy - 1]
+    rd += r
+    r = weights[ia, sy] * y3
+    ra += r * control[ia, sy]
+    rd += r
+    return ra, rd
+
+
+@numba.njit(cache=True, inline="always")
+def _cubic_point_value(px, py, kx, ky, control, weights, inv_wx, inv_wy):
+    """:func:`_point_value` for degree 3 with scalars instead of scratch arrays; the basis
+    values of interior spans are scaled by 6 on both axes (:func:`_cubic_basis_scaled`), which
+    cancels in A / D: the same value up to rounding, without 8 divisions per point."""
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    sx = _uniform_span(n0, 3, px, kx, inv_wx)
+    sy = _uniform_span(n1, 3, py, ky, inv_wy)
+    x0, x1, x2, x3 = _cubic_basis_scaled(sx, px, kx, n0, inv_wx)
+    y0, y1, y2, y3 = _cubic_basis_scaled(sy, py, ky, n1, inv_wy)
+    ra, rd = _cubic_row(control, weights, sx - 3, sy, y0, y1, y2, y3)
+    a = 0.0 + x0 * ra
+    d = 0.0 + x0 * rd
+    ra, rd = _cubic_row(control, weights, sx - 2, sy, y0, y1, y2, y3)
+    a += x1 * ra
+    d += x1 * rd
+    ra, rd = _cubic_row(control, weights, sx - 1, sy, y0, y1, y2, y3)
+    a += x2 * ra
+    d += x2 * rd
+    ra, rd = _cubic_row(control, weights, sx, sy, y0, y1, y2, y3)
+    a += x3 * ra
+    d += x3 * rd
+    return a / d
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
@@ -360,8 +444,12 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
                     and py <= ky1 + tol_y and math.isfinite(z)):
                 out[k] = np.nan
                 continue
-            s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
-                             bx, by, left, right)
+            if p == 3:
+                s = _cubic_point_value(px, py, knots_x, knots_y, control, weights, inv_wx,
+                                       inv_wy)
+            else:
+                s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
+                                 bx, by, left, right)
             out[k] = (z - origin_z) - s
     return out
 
@@ -437,8 +525,12 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
                     dzdy[k] = np.nan
                 continue
             if not with_derivatives:
-                z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
-                                    inv_wy, bx, by, left, right)
+                if p == 3:
+                    z[k] = _cubic_point_value(xk, yk, knots_x, knots_y, control, weights,
+                                              inv_wx, inv_wy)
+                else:
+                    z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
+                                        inv_wy, bx, by, left, right)
                 continue
             sx = _uniform_span(n0, p, xk, knots_x, inv_wx)
             sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
