@@ -561,6 +561,9 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
     first, then A[(a, b), (a', b')] += bx_i[a] bx_i[a'] T_i[b, b'] for the degree + 1
     non-zero bx_i[a]: O(cells p^2 + rows n1 p^3) instead of O(cells p^4).
 
+    With R the matrix and right-hand side are those of the rational basis R_ab N_a N_b / D:
+    diag(R) A diag(R) and R rhs, scaled in here once the sums are complete.
+
     Returns ``(lower, rhs, total)``: ``lower[k, d] = A[k + d, k]``, shape
     (n0 n1, bandwidth + 1) (its transpose is LAPACK's lower band storage in Fortran order, so
     ``lower.T`` goes to ``dpbsv`` without a copy), the right-hand side and the sum of the
@@ -686,6 +689,13 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                 t[b, d] = 0.0
             for e in range(2 * p + 1):
                 tf[b, e] = 0.0
+    if rational:  # A -> diag(R) A diag(R), rhs -> R rhs (the rational basis R N_a N_b / D)
+        rw = rational_weights.ravel()
+        for k in range(size):
+            rk = rw[k]
+            for d in range(min(bandwidth + 1, size - k)):
+                lower[k, d] *= rk * rw[k + d]
+            rhs[k] *= rk
     return lower, rhs, total
 
 
@@ -864,15 +874,6 @@ def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_
             z[i, j], gx[i, j], gy[i, j] = row_node_value(sy, p, by, dby, j, a_row, d_row,
                                                          ax_row, dx_row)
     return z, gx, gy
-
-
-@numba.njit(cache=True)
-def scale_band(band, r):
-    """In place: band[d, k] *= r[k] r[k + d] (A -> diag(r) A diag(r) in lower band storage)."""
-    size = band.shape[1]
-    for d in range(band.shape[0]):
-        for k in range(size - d):
-            band[d, k] *= r[k] * r[k + d]
 
 
 @numba.njit(cache=True, error_model="numpy")
