@@ -191,9 +191,9 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                                             smoothing, terrain_prior)
         surface = _array_fit(positions, quantize, terrain)
         labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
-        return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)
+        return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
                            terrain_prior)
     frame = segmenter(frame)
     labels = frame.attribute(LABELS)
-    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)
+    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
