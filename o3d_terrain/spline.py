@@ -446,7 +446,8 @@ class GridBasis:
             self.spans_x, self.basis_x, self.spans_y, self.basis_y, z, sample_weights, r_in,
             cells, self.n0, self.n1, self.degree, self.bandwidth)
         band = lower.T  # LAPACK lower band storage, Fortran order: no copy for dpbsv
-        scale = max(float(np.ascontiguousarray(band[0]).mean()), 1e-12)  # strided: 10x slower
+        diagonal = np.ascontiguousarray(band[0])  # numpy's mean of the strided row: ~20 us
+        scale = max(float(np.add.reduce(diagonal)) / diagonal.size, 1e-12)  # = mean()
         if smoothing > 0:
             data_per_ctrl = weight_sum / (self.n0 * self.n1)
             _tk.add_thin_plate_band(band, self.n0, self.n1, smoothing * max(data_per_ctrl, 1e-12),

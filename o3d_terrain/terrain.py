@@ -319,8 +319,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     measured_cells = np.flatnonzero(measured)
     use_prior = prior is not None
     compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), 0.0)
-    p = z.copy()
-    w = base.copy()
+    p = z  # read-only until the first pass writes into the buffers below
+    w = base
     # two buffers per product, alternating between passes (the previous pass stays readable);
     # cells outside valid_cells keep weight 0, ratio 0, sample z and False
     weight_buffers = (np.zeros(z.shape), np.zeros(z.shape))
