@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 from .frame import LABELS, Frame, as_frame
-from .grid import region_of
+from .grid import quantize_points, region_of
 from .segment import TerrainLabel
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
@@ -49,32 +49,83 @@ def _check_region(region) -> tuple[float, float, float, float] | None:
 
 
 def _build(make, **options):
-    """A stage from the api's keyword arguments; option errors become InputError."""
+    """A stage from the api's keyword arguments; option errors become InputError.
+
+    Stages are immutable, so the last few built are kept and reused for the same options
+    (keyed by each value's type and repr, so 1, 1.0 and True stay apart)."""
     try:
-        return make(**options)
+        key = (make, tuple((k, type(v), repr(v)) for k, v in sorted(options.items())))
+        hash(key)
+    except Exception:  # an option value without a usable repr: build every time
+        key = None
+    if key is not None and key in _STAGE_CACHE:
+        return _STAGE_CACHE[key]
+    try:
+        built = make(**options)
     except ConfigError as exc:
         raise InputError(str(exc)) from exc
+    if key is not None:
+        if len(_STAGE_CACHE) >= 64:
+            _STAGE_CACHE.pop(next(iter(_STAGE_CACHE)))
+        _STAGE_CACHE[key] = built
+    return built
 
 
-def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
-                   smoothing, terrain_prior=True) -> Frame:
-    """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
+_STAGE_CACHE: dict = {}
+
+
+def _array_positions(cloud: Any) -> np.ndarray | None:
+    """(N, 3) float64 positions of a numeric (N, 3)/(N, 4) numpy array without making a frame
+    (no copy when it is already float64 and C-ordered (N, 3)); None for anything else."""
+    if not (isinstance(cloud, np.ndarray) and cloud.ndim == 2 and cloud.shape[1] in (3, 4)
+            and cloud.dtype != object and np.issubdtype(cloud.dtype, np.number)):
+        return None
+    return np.ascontiguousarray(cloud[:, :3], dtype=np.float64)
+
+
+def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
+                    terrain_prior):
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
     terrain = _build(RationalBSplineTerrain,
                      control_points=None if control_points is None else tuple(control_points),
                      degree=degree, method=method, smoothing=smoothing,
                      terrain_prior=terrain_prior)
-    frame = as_frame(cloud)
-    positions = frame.positions
+    return quantize, terrain
+
+
+def _checked_region(positions: np.ndarray, region):
+    """The region the grid covers: ``region`` or the cloud's extent (checked)."""
     if len(positions) == 0:
         raise InputError("the cloud is empty; give a cloud with points")
-    if region is None:
-        extent = region_of(positions)  # raises when no point is finite
-        if not (extent[1] > extent[0] and extent[3] > extent[2]):
-            raise InputError(f"the cloud's x/y extent {extent} is degenerate (all points on a "
-                             f"line or one spot); give a region")
+    if region is not None:
+        return region
+    extent = region_of(positions)  # raises when no point is finite
+    if not (extent[1] > extent[0] and extent[3] > extent[2]):
+        raise InputError(f"the cloud's x/y extent {extent} is degenerate (all points on a "
+                         f"line or one spot); give a region")
+    return extent
+
+
+def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
+                   smoothing, terrain_prior=True) -> Frame:
+    """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
+    quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
+                                        smoothing, terrain_prior)
+    frame = as_frame(cloud)
+    _checked_region(frame.positions, quantize.region)
     return terrain(quantize(frame))
+
+
+def _array_fit(positions: np.ndarray, quantize: GridQuantize,
+               terrain: RationalBSplineTerrain) -> TerrainSurface:
+    """What ``terrain(quantize(frame))`` computes, on an array without a frame: the same
+    functions with the stages' options (the grid covers the extent computed once)."""
+    extent = _checked_region(positions, quantize.region)
+    grid = quantize._guard(lambda: quantize_points(
+        positions, cell_size=quantize.cell_size, region=extent,
+        min_points=quantize.min_points, fill_empty=quantize.fill_empty))
+    return terrain._guard(lambda: terrain.fit(grid, positions)).surface
 
 
 def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: float = 3.5,
@@ -102,6 +153,11 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
+    positions = _array_positions(cloud)
+    if positions is not None:  # numpy input: the stages' functions without a frame
+        quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
+                                            smoothing, terrain_prior)
+        return _array_fit(positions, quantize, terrain)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
                            terrain_prior)
     return frame.product("surface")
@@ -130,8 +186,15 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin)
+    positions = _array_positions(cloud)
+    if positions is not None:  # numpy input: the stages' functions without a frame
+        quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
+                                            smoothing, terrain_prior)
+        surface = _array_fit(positions, quantize, terrain)
+        labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
+        return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
                            terrain_prior)
     frame = segmenter(frame)
     labels = frame.attribute(LABELS)
-    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64)
+    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)

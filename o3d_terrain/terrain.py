@@ -373,13 +373,14 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     measured_cells = np.flatnonzero(measured)
     use_prior = prior is not None
     compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), np.zeros((1, 1)))
-    p = z.copy()
-    w = base.copy()
+    p = z  # read-only until the first pass writes into the buffers below
+    w = base
     # two buffers per product, alternating between passes (the previous pass stays readable);
     # cells outside valid_cells keep weight 0, ratio 0, sample z and False
     weight_buffers = (np.zeros(z.shape), np.zeros(z.shape))
     sample_buffers = (z.copy(), z.copy())
     ratios = np.zeros(z.shape)  # W / base of the last pass, remapped onto each layout
+    surface = np.zeros(z.shape)  # the surface at the valid cells (0 elsewhere)
     have_ratios = False
     records = []
     equalized = np.zeros(z.shape, bool)
@@ -395,8 +396,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             iteration += 1
             r = _control_weights(ratios, coverage, basis, valid_cells) \
                 if (have_ratios and rational) else np.ones(n)
-            q = basis.solve_tensor(p, w, r, smoothing)
-            s = basis.evaluate(q, r, valid)
+            q = basis.solve_tensor(p, w, r, smoothing, cells=valid_cells)
+            s = basis.evaluate_cells(q, r, valid_cells, surface)
             # residuals of the original samples (not the equalized ones): noise scale on the
             # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
             noise, mean_error = _tk.residual_scale(z, s, measured_cells, noise_floor)
@@ -418,8 +419,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     basis_final = basis
     rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
                                                               valid_cells)
-    q = basis_final.solve_tensor(p, w, rr, smoothing)
-    s = basis_final.evaluate(q, rr, valid)
+    q = basis_final.solve_tensor(p, w, rr, smoothing, cells=valid_cells)
+    s = basis_final.evaluate_cells(q, rr, valid_cells, surface)
     outliers = valid & (z - s > above_k * noise)
     return q, rr, basis_final, w, p, equalized, outliers, records, noise
 

@@ -77,6 +77,26 @@ def test_tensor_cloud_numpy_and_auto_threshold_agree():
     np.testing.assert_array_equal(a, b)
 
 
+def test_array_inputs_equal_the_frame_path_and_options_are_checked_every_call():
+    # numpy arrays skip the frame; (N, 4) float32 and a tensor cloud give the same fit
+    pts, _ = scene(5, n=6_000)
+    with4 = np.c_[pts, np.ones(len(pts))].astype(np.float32)
+    tensor = o3d.t.geometry.PointCloud(o3d.core.Tensor(with4[:, :3].astype(np.float64)))
+    for kwargs in ({}, {"distance_threshold": 0.2, "range_coefficient": 1e-3}):
+        s_array, i_array = segment_terrain(with4, **kwargs)
+        s_frame, i_frame = segment_terrain(tensor, **kwargs)
+        np.testing.assert_array_equal(i_array, i_frame)
+        np.testing.assert_array_equal(s_array.control_points, s_frame.control_points)
+        assert s_array.cell_size == s_frame.cell_size == 0.5
+    np.testing.assert_array_equal(fit_terrain(with4).weights, fit_terrain(tensor).weights)
+    # stages are reused for equal options, never for 1 / 1.0 / True
+    segment_terrain(pts, degree=1)
+    with pytest.raises(InputError, match="degree"):
+        segment_terrain(pts, degree=True)
+    with pytest.raises(InputError, match="RationalBSplineTerrain"):
+        fit_terrain(pts, control_points=(2, 2), degree=1, region=(100, 101, 100, 101))
+
+
 def test_non_finite_points_are_ignored_and_indices_stay_aligned():
     pts, truth = scene(2)
     bad = pts.copy()

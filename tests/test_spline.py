@@ -163,6 +163,41 @@ def test_tensor_fit_equals_dense_weighted_least_squares():
     np.testing.assert_allclose(fit.control_points.ravel(), ref, atol=1e-6)
 
 
+def test_tensor_fit_over_sparse_cells_equals_dense_weighted_least_squares():
+    # most cells without weight (as on a lidar grid): the fit over the listed cells only, and
+    # the surface written at those cells, against the dense rational design matrix
+    from o3d_terrain.spline import GridBasis
+
+    rng = np.random.default_rng(8)
+    x = np.linspace(0, 12, 31)
+    y = np.linspace(0, 9, 23)
+    z = rng.normal(size=(31, 23))
+    w = np.where(rng.uniform(size=z.shape) < 0.3, rng.uniform(0.1, 2, z.shape), 0.0)
+    r = rng.uniform(0.5, 2, (7, 6))
+    basis = GridBasis(x, y, (7, 6), 3, (0, 12, 0, 9))
+    cells = np.flatnonzero(w > 0)
+    q = basis.solve_tensor(z, w, r, ridge=1e-14, cells=cells)
+    np.testing.assert_array_equal(q, basis.solve_tensor(z, w, r, ridge=1e-14))
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    rows = []
+    for a in range(7):
+        for b in range(6):
+            e = np.zeros((7, 6))
+            e[a, b] = 1.0
+            rows.append(TerrainSurface(3, basis.knots_x, basis.knots_y, e, r)(xx, yy).ravel())
+    design = np.array(rows).T[cells]
+    sw = np.sqrt(w.ravel()[cells])
+    ref = np.linalg.lstsq(design * sw[:, None], z.ravel()[cells] * sw, rcond=None)[0]
+    np.testing.assert_allclose(q.ravel(), ref, atol=1e-6)
+    out = np.full(z.shape, -7.0)
+    basis.evaluate_cells(q, r, cells, out)
+    full = basis.evaluate(q, r)
+    np.testing.assert_array_equal(out.ravel()[cells], full.ravel()[cells])
+    assert np.all(np.delete(out.ravel(), cells) == -7.0)
+    np.testing.assert_allclose(full, TerrainSurface(3, basis.knots_x, basis.knots_y, q, r)(xx, yy),
+                               atol=1e-9)
+
+
 def test_outside_region_is_nan_and_nonfinite_input_is_nan():
     rng = np.random.default_rng(6)
     s = random_surface(rng)

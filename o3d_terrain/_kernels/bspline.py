@@ -324,6 +324,90 @@ def _basis_values(span, t, degree, knots, n_ctrl, inv_width, out, left, right):
         basis_funs_scratch(span, t, degree, knots, out, left, right)
 
 
+@numba.njit(cache=True, inline="always")
+def _cubic_basis_scaled(span, t, knots, n_ctrl, inv_width):
+    """The 4 non-zero cubic basis functions at t as scalars, all times one common factor:
+    on interior uniform spans 6 times the closed form of :func:`_basis_values` (its divisions
+    by 6 left out), elsewhere A2.2 unrolled (the same operations, factor 1). Only for ratios
+    in which the factor cancels (the rational surface A / D)."""
+    if span >= 5 and span <= n_ctrl - 3:
+        u = (t - knots[span]) * inv_width
+        v = 1.0 - u
+        u2 = u * u
+        u3 = u2 * u
+        return (v * v * v, 3.0 * u3 - 6.0 * u2 + 4.0, -3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0, u3)
+    left1 = t - knots[span]
+    right1 = knots[span + 1] - t
+    temp = 1.0 / (right1 + left1)
+    o0 = 0.0 + right1 * temp
+    o1 = left1 * temp
+    left2 = t - knots[span - 1]
+    right2 = knots[span + 2] - t
+    temp = o0 / (right1 + left2)
+    o0 = 0.0 + right1 * temp
+    saved = left2 * temp
+    temp = o1 / (right2 + left1)
+    o1 = saved + right2 * temp
+    o2 = left1 * temp
+    left3 = t - knots[span - 2]
+    right3 = knots[span + 3] - t
+    temp = o0 / (right1 + left3)
+    o0 = 0.0 + right1 * temp
+    saved = left3 * temp
+    temp = o1 / (right2 + left2)
+    o1 = saved + right2 * temp
+    saved = left2 * temp
+    temp = o2 / (right3 + left1)
+    o2 = saved + right3 * temp
+    o3 = left1 * temp
+    return o0, o1, o2, o3
+
+
+@numba.njit(cache=True, inline="always")
+def _cubic_row(control, weights, ia, sy, y0, y1, y2, y3):
+    """Row ``ia`` of :func:`_rational_sums` for degree 3 (the same operations): the sums over
+    the 4 control points of span ``sy`` of R Q N_b and R N_b."""
+    r = weights[ia, sy - 3] * y0
+    ra = 0.0 + r * control[ia, sy - 3]
+    rd = 0.0 + r
+    r = weights[ia, sy - 2] * y1
+    ra += r * control[ia, sy - 2]
+    rd += r
+    r = weights[ia, sy - 1] * y2
+    ra += r * control[ia, sy - 1]
+    rd += r
+    r = weights[ia, sy] * y3
+    ra += r * control[ia, sy]
+    rd += r
+    return ra, rd
+
+
+@numba.njit(cache=True, inline="always")
+def _cubic_point_value(px, py, kx, ky, control, weights, inv_wx, inv_wy):
+    """:func:`_point_value` for degree 3 with scalars instead of scratch arrays; the basis
+    values of interior spans are scaled by 6 on both axes (:func:`_cubic_basis_scaled`), which
+    cancels in A / D: the same value up to rounding, without 8 divisions per point."""
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    sx = _uniform_span(n0, 3, px, kx, inv_wx)
+    sy = _uniform_span(n1, 3, py, ky, inv_wy)
+    x0, x1, x2, x3 = _cubic_basis_scaled(sx, px, kx, n0, inv_wx)
+    y0, y1, y2, y3 = _cubic_basis_scaled(sy, py, ky, n1, inv_wy)
+    ra, rd = _cubic_row(control, weights, sx - 3, sy, y0, y1, y2, y3)
+    a = 0.0 + x0 * ra
+    d = 0.0 + x0 * rd
+    ra, rd = _cubic_row(control, weights, sx - 2, sy, y0, y1, y2, y3)
+    a += x1 * ra
+    d += x1 * rd
+    ra, rd = _cubic_row(control, weights, sx - 1, sy, y0, y1, y2, y3)
+    a += x2 * ra
+    d += x2 * rd
+    ra, rd = _cubic_row(control, weights, sx, sy, y0, y1, y2, y3)
+    a += x3 * ra
+    d += x3 * rd
+    return a / d
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
@@ -360,8 +444,12 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
                     and py <= ky1 + tol_y and math.isfinite(z)):
                 out[k] = np.nan
                 continue
-            s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
-                             bx, by, left, right)
+            if p == 3:
+                s = _cubic_point_value(px, py, knots_x, knots_y, control, weights, inv_wx,
+                                       inv_wy)
+            else:
+                s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
+                                 bx, by, left, right)
             out[k] = (z - origin_z) - s
     return out
 
@@ -437,8 +525,12 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
                     dzdy[k] = np.nan
                 continue
             if not with_derivatives:
-                z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
-                                    inv_wy, bx, by, left, right)
+                if p == 3:
+                    z[k] = _cubic_point_value(xk, yk, knots_x, knots_y, control, weights,
+                                              inv_wx, inv_wy)
+                else:
+                    z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
+                                        inv_wy, bx, by, left, right)
                 continue
             sx = _uniform_span(n0, p, xk, knots_x, inv_wx)
             sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
@@ -454,36 +546,78 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
 # normal equations of a tensor-product fit on a grid, by rows
 
 
-@numba.njit(cache=True)
-def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_values, n0, n1,
-                       degree, bandwidth):
-    """Band of sum_c w_c b_c b_c^T and the vector sum_c v_c b_c over grid cells c = (i, j),
-    b_c[a * n1 + b] = N_a(x_i) N_b(y_j), in LAPACK lower band storage ``band[d, k] = A[k + d, k]``.
+@numba.njit(cache=True, error_model="numpy")
+def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights,
+                      cells, n0, n1, degree, bandwidth):
+    """Normal equations of the weighted (rational) least-squares fit, over the cells ``cells``
+    only (flat indices into the C-ordered (m0, m1) grids, increasing; every other cell must
+    have a sample weight <= 0).
 
-    The tensor product is used row by row: for grid row i, T_i = sum_j w_ij by_j by_j^T
-    (banded, n1 x n1) and r_i = sum_j v_ij by_j are gathered first, then
-    A[(a, b), (a', b')] += bx_i[a] bx_i[a'] T_i[b, b'] for the degree + 1 non-zero bx_i[a].
-    That is O(m0 m1 p^2 + m0 n1 p^3) instead of O(m0 m1 p^4) for the cell-by-cell sum; both
-    give the same matrix up to rounding. Cells with w = v = 0 are skipped.
+    Per cell: w = sample weight (cells with w <= 0 or NaN add nothing), v = w z; with
+    control-point weights R (``rational_weights`` of size > 0) the rational basis divides by
+    D = Bx R By^T at the cell (contracted along y once per column): w / D^2 and w z / D.
+    The matrix sum_c w_c b_c b_c^T, b_c[a * n1 + b] = N_a(x_i) N_b(y_j), is built row by row:
+    for grid row i, T_i = sum_j w_ij by_j by_j^T (banded, n1 x n1) and r_i = sum_j v_ij by_j
+    first, then A[(a, b), (a', b')] += bx_i[a] bx_i[a'] T_i[b, b'] for the degree + 1
+    non-zero bx_i[a]: O(cells p^2 + rows n1 p^3) instead of O(cells p^4).
+
+    With R the matrix and right-hand side are those of the rational basis R_ab N_a N_b / D:
+    diag(R) A diag(R) and R rhs, scaled in here once the sums are complete.
+
+    Returns ``(lower, rhs, total)``: ``lower[k, d] = A[k + d, k]``, shape
+    (n0 n1, bandwidth + 1) (its transpose is LAPACK's lower band storage in Fortran order, so
+    ``lower.T`` goes to ``dpbsv`` without a copy), the right-hand side and the sum of the
+    weights > 0 (in cell order). Each entry of ``lower`` is updated once per grid row, so the
+    loop order within a row does not change the values.
     """
     p = degree
-    size = n0 * n1
-    lower = np.zeros((size, bandwidth + 1))  # lower[k, d] = A[k + d, k]
-    rhs = np.zeros(size)
-    t = np.zeros((n1, p + 1))  # t[b, d] = T_i[b, b + d]
-    r = np.zeros(n1)
-    m0 = spans_x.shape[0]
     m1 = spans_y.shape[0]
-    for i in range(m0):
+    rational = rational_weights.shape[0] > 0
+    size = n0 * n1
+    lower = np.zeros((size, bandwidth + 1))
+    rhs = np.zeros(size)
+    total = 0.0
+    col_d = np.zeros((m1, rational_weights.shape[0]))
+    if rational:
+        for j in range(m1):
+            sy = spans_y[j] - p
+            for a in range(n0):
+                acc = 0.0
+                for b in range(p + 1):
+                    acc += basis_y[j, b] * rational_weights[a, sy + b]
+                col_d[j, a] = acc
+    zf = z.ravel()
+    wf = sample_weights.ravel()
+    t = np.zeros((n1, p + 1))  # t[b, d] = T_i[b, b + d]
+    tf = np.zeros((n1, 2 * p + 1))
+    r = np.zeros(n1)
+    count = cells.shape[0]
+    k = 0
+    while k < count:
+        i = cells[k] // m1  # one integer division per grid row
+        first = i * m1
+        end = first + m1
         sx = spans_x[i]
-        if sx < 0:
-            continue
         b_lo = n1
         b_hi = -1
-        for j in range(m1):
-            w = matrix_weights[i, j]
-            v = rhs_values[i, j]
-            if w == 0.0 and v == 0.0:
+        while k < count and cells[k] < end:
+            c = cells[k]
+            k += 1
+            w = wf[c]
+            if not w > 0.0:
+                continue
+            total += w
+            j = c - first
+            wz = w * zf[c]
+            if rational:
+                acc = 0.0
+                for a in range(p + 1):
+                    acc += basis_x[i, a] * col_d[j, sx - p + a]
+                w = w / (acc * acc)
+                v = wz / acc
+            else:
+                v = wz
+            if sx < 0:
                 continue
             sy = spans_y[j]
             if sy < 0:
@@ -493,6 +627,30 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
                 b_lo = base
             if sy > b_hi:
                 b_hi = sy
+            if p == 3:  # the loop below unrolled for the cubic case (same operations)
+                y0 = basis_y[j, 0]
+                y1 = basis_y[j, 1]
+                y2 = basis_y[j, 2]
+                y3 = basis_y[j, 3]
+                r[base] += v * y0
+                r[base + 1] += v * y1
+                r[base + 2] += v * y2
+                r[base + 3] += v * y3
+                wb = w * y0
+                t[base, 0] += wb * y0
+                t[base, 1] += wb * y1
+                t[base, 2] += wb * y2
+                t[base, 3] += wb * y3
+                wb = w * y1
+                t[base + 1, 0] += wb * y1
+                t[base + 1, 1] += wb * y2
+                t[base + 1, 2] += wb * y3
+                wb = w * y2
+                t[base + 2, 0] += wb * y2
+                t[base + 2, 1] += wb * y3
+                wb = w * y3
+                t[base + 3, 0] += wb * y3
+                continue
             for b in range(p + 1):
                 yb = basis_y[j, b]
                 r[base + b] += v * yb
@@ -501,6 +659,14 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
                     t[base + b, d] += wb * basis_y[j, b + d]
         if b_hi < 0:
             continue
+        # the full symmetric band of T_i: tf[b, p + e] = T_i[b, b + e], e = -p .. p (zero
+        # outside rows b_lo .. b_hi, so fixed-length loops add only zeros beyond them: each
+        # entry of ``lower`` is updated once per grid row, the same sums as entry by entry)
+        for b in range(b_lo, b_hi + 1):
+            for d in range(p + 1):
+                tf[b, p + d] = t[b, d]
+                if b + d < n1:
+                    tf[b + d, p - d] = t[b, d]
         for a1 in range(p + 1):
             row1 = (sx - p + a1) * n1
             xa1 = basis_x[i, a1]
@@ -508,23 +674,75 @@ def tensor_normal_band(spans_x, basis_x, spans_y, basis_y, matrix_weights, rhs_v
                 rhs[row1 + b] += xa1 * r[b]
             f = xa1 * xa1
             for b in range(b_lo, b_hi + 1):
-                for d in range(min(p + 1, b_hi + 1 - b)):
-                    lower[row1 + b, d] += f * t[b, d]
+                for d in range(p + 1):
+                    lower[row1 + b, d] += f * tf[b, p + d]
             for a2 in range(a1 + 1, p + 1):
                 f = xa1 * basis_x[i, a2]
-                off = (a2 - a1) * n1
+                off = (a2 - a1) * n1 - p
                 for b1 in range(b_lo, b_hi + 1):
                     k1 = row1 + b1
-                    # b2 < b1: T[b2, b1 - b2]; b2 >= b1: T[b1, b2 - b1]
-                    for b2 in range(max(b_lo, b1 - p), b1):
-                        lower[k1, off + b2 - b1] += f * t[b2, b1 - b2]
-                    for b2 in range(b1, min(b_hi + 1, b1 + p + 1)):
-                        lower[k1, off + b2 - b1] += f * t[b1, b2 - b1]
+                    for e in range(2 * p + 1):
+                        lower[k1, off + e] += f * tf[b1, e]
         for b in range(b_lo, b_hi + 1):
             r[b] = 0.0
             for d in range(p + 1):
                 t[b, d] = 0.0
-    return np.ascontiguousarray(lower.T), rhs
+            for e in range(2 * p + 1):
+                tf[b, e] = 0.0
+    if rational:  # A -> diag(R) A diag(R), rhs -> R rhs (the rational basis R N_a N_b / D)
+        rw = rational_weights.ravel()
+        for k in range(size):
+            rk = rw[k]
+            for d in range(min(bandwidth + 1, size - k)):
+                lower[k, d] *= rk * rw[k + d]
+            rhs[k] *= rk
+    return lower, rhs, total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominator, cells,
+                        out):
+    """:func:`grid_rational` written into ``out`` (C-ordered (m0, m1)) at the cells ``cells``
+    (flat indices) only; other cells of ``out`` are left as they are. Same operations per
+    cell as :func:`grid_rational`, so the same values."""
+    p = basis_x.shape[1] - 1
+    m1 = spans_y.shape[0]
+    n0 = numerator.shape[0]
+    rational = denominator.shape[0] > 0
+    col_n = np.zeros((m1, n0))
+    col_d = np.zeros((m1, n0)) if rational else np.zeros((0, 0))
+    for j in range(m1):
+        sy = spans_y[j] - p
+        for a in range(n0):
+            acc_n = 0.0
+            acc_d = 0.0
+            for b in range(p + 1):
+                acc_n += basis_y[j, b] * numerator[a, sy + b]
+                if rational:
+                    acc_d += basis_y[j, b] * denominator[a, sy + b]
+            col_n[j, a] = acc_n
+            if rational:
+                col_d[j, a] = acc_d
+    of = out.ravel()
+    count = cells.shape[0]
+    k = 0
+    while k < count:
+        i = cells[k] // m1  # one integer division per grid row
+        first = i * m1
+        end = first + m1
+        sx = spans_x[i] - p
+        while k < count and cells[k] < end:
+            c = cells[k]
+            k += 1
+            j = c - first
+            acc_n = 0.0
+            acc_d = 0.0
+            for a in range(p + 1):
+                acc_n += basis_x[i, a] * col_n[j, sx + a]
+                if rational:
+                    acc_d += basis_x[i, a] * col_d[j, sx + a]
+            of[c] = acc_n / acc_d if rational else acc_n
+    return out
 
 
 @numba.njit(cache=True, inline="always")
@@ -658,15 +876,6 @@ def rational_surface_grid(x, y, knots_x, knots_y, degree, control, weights, tol_
     return z, gx, gy
 
 
-@numba.njit(cache=True)
-def scale_band(band, r):
-    """In place: band[d, k] *= r[k] r[k + d] (A -> diag(r) A diag(r) in lower band storage)."""
-    size = band.shape[1]
-    for d in range(band.shape[0]):
-        for k in range(size - d):
-            band[d, k] *= r[k] * r[k + d]
-
-
 @numba.njit(cache=True, error_model="numpy")
 def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, mask):
     """(Bx N By^T) / (Bx D By^T) at the cells where ``mask`` is true (0 elsewhere): a rational
@@ -717,50 +926,3 @@ def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, ma
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
             out[i, j] = acc_n / acc_d if rational else acc_n
     return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def fit_cell_weights(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights):
-    """Per-cell matrix weights and right-hand-side values of the (rational) least-squares fit.
-
-    w = sample weight where > 0, else 0 (NaN too); v = w z where w > 0. With control-point
-    weights R (``rational_weights`` of size > 0) the rational basis divides by the
-    denominator D = Bx R By^T at the cell: returns (w / D^2, w z / D); else (w, w z). Also
-    returns the sum of w (taken in cell order). D is computed with the operations of
-    :func:`grid_rational`.
-    """
-    p = basis_x.shape[1] - 1
-    m0 = spans_x.shape[0]
-    m1 = spans_y.shape[0]
-    rational = rational_weights.shape[0] > 0
-    matrix_w = np.zeros((m0, m1))
-    rhs_v = np.zeros((m0, m1))
-    total = 0.0
-    col_d = np.zeros((m1, rational_weights.shape[0]))
-    if rational:
-        n0 = rational_weights.shape[0]
-        for j in range(m1):
-            sy = spans_y[j] - p
-            for a in range(n0):
-                acc = 0.0
-                for b in range(p + 1):
-                    acc += basis_y[j, b] * rational_weights[a, sy + b]
-                col_d[j, a] = acc
-    for i in range(m0):
-        sx = spans_x[i] - p
-        for j in range(m1):
-            w = sample_weights[i, j]
-            if not w > 0.0:
-                continue
-            total += w
-            wz = w * z[i, j]
-            if rational:
-                acc = 0.0
-                for a in range(p + 1):
-                    acc += basis_x[i, a] * col_d[j, sx + a]
-                matrix_w[i, j] = w / (acc * acc)
-                rhs_v[i, j] = wz / acc
-            else:
-                matrix_w[i, j] = w
-                rhs_v[i, j] = wz
-    return matrix_w, rhs_v, total

@@ -7,9 +7,10 @@ import dataclasses
 import numpy as np
 
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
+from ..grid import HeightGrid
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..segment import TerrainLabel, segment_points
-from ..terrain import METHODS, fit_grid_detailed
+from ..terrain import METHODS, TerrainFit, fit_grid_detailed
 from .base import Stage, stage
 
 
@@ -75,19 +76,23 @@ class RationalBSplineTerrain(Stage):
         return []
 
     def run(self, frame: Frame) -> Frame:
+        fit = self.fit(frame.product("grid"), frame.positions)
+        return frame.with_products(surface=fit.surface, terrain_fit=fit)
+
+    def fit(self, grid: HeightGrid, positions: np.ndarray | None = None) -> TerrainFit:
+        """The fit of :meth:`run` on a height grid; ``positions`` (the points the grid was
+        made from) give the ground-layer samples. The surface carries the grid's cell size."""
         fit = fit_grid_detailed(
-            frame.product("grid"), control_points=self.control_points, degree=self.degree,
+            grid, control_points=self.control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
             rational=self.rational, terrain_prior=self.terrain_prior,
             max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
             max_obstacle_width=self.max_obstacle_width,
-            positions=frame.positions if self.ground_layer else None,
+            positions=positions if self.ground_layer else None,
             ground_layer=self.ground_layer,
         )
-        grid = frame.product("grid")
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
-        return frame.with_products(surface=surface,
-                                   terrain_fit=dataclasses.replace(fit, surface=surface))
+        return dataclasses.replace(fit, surface=surface)
 
 
 @stage
@@ -139,11 +144,7 @@ class Segmenter(Stage):
                                   help="sensor position for the range, in cloud coordinates")
 
     def run(self, frame: Frame) -> Frame:
-        labels, heights = segment_points(
-            frame.product("surface"), frame.positions, threshold=self.threshold,
-            below_threshold=self.below_threshold, range_coefficient=self.range_coefficient,
-            sensor_origin=self.sensor_origin,
-        )
+        labels, heights = self.label(frame.product("surface"), frame.positions)
         frame = frame.with_attributes(**{LABELS: labels.astype(np.uint8)[:, None],
                                          HEIGHTS_ABOVE_TERRAIN: heights[:, None]})
         counts = np.bincount(labels, minlength=4)
@@ -152,3 +153,11 @@ class Segmenter(Stage):
             f"{counts[TerrainLabel.OBSTACLE]} obstacle, {counts[TerrainLabel.BELOW_TERRAIN]} "
             f"below-terrain, {counts[TerrainLabel.UNKNOWN]} unknown point(s)"
         )
+
+    def label(self, surface, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Labels (N,) uint8 and heights above the terrain (N,) of (N, 3) positions: the
+        rule of :meth:`run` (:func:`~o3d_terrain.segment.segment_points`)."""
+        return segment_points(surface, positions, threshold=self.threshold,
+                              below_threshold=self.below_threshold,
+                              range_coefficient=self.range_coefficient,
+                              sensor_origin=self.sensor_origin)
