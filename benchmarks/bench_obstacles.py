@@ -71,20 +71,21 @@ def speed(positions: np.ndarray, repeats: int) -> None:
 
 
 def kitti_detection(root: Path) -> None:
-    from test_obstacles import KITTI_GROUND, found_fraction, kitti_instances
+    from o3d_terrain.evaluation.datasets import SEMANTIC_KITTI_GROUND
+    from o3d_terrain.obstacles import instances_found, semantic_kitti_instances
 
     for name in ("000000", "000001", "000002"):
         positions, labels = kitti_frame(root, name)
         surface = fit_terrain(positions)
         point_labels, heights = segment_points(surface, positions)
-        instances = kitti_instances(labels, positions)
-        ground = np.isin(labels & 0xFFFF, KITTI_GROUND)
+        instances = semantic_kitti_instances(labels, positions)
+        ground = np.isin(labels & 0xFFFF, SEMANTIC_KITTI_GROUND)
         for method in ("grid", "dbscan"):
             t0 = time.perf_counter()
             obstacles = detect_obstacles(positions, labels=point_labels,
                                          heights_above_terrain=heights, method=method)
             seconds = time.perf_counter() - t0
-            found = found_fraction(obstacles.cluster_ids, instances, 50)
+            found = instances_found(obstacles.cluster_ids, instances, 50)
             mostly_ground = sum(1 for o in obstacles if ground[o.indices].mean() > 0.5)
             print(f"kitti {name} {method:<6}: {sum(found.values())}/{len(found)} instances "
                   f"(>= 50 points) found, {len(obstacles)} obstacles, {mostly_ground} mostly "

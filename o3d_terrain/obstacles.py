@@ -34,7 +34,8 @@ from .frame import HEIGHTS_ABOVE_TERRAIN, LABELS, as_frame
 from .segment import TerrainLabel
 
 __all__ = ["DetectedObstacle", "ObstacleSet", "detect_obstacles", "CLUSTER_METHODS",
-           "CLUSTER_IDS", "oriented_box"]
+           "CLUSTER_IDS", "oriented_box", "instances_found", "semantic_kitti_instances",
+           "SEMANTIC_KITTI_INSTANCE_CLASSES"]
 
 CLUSTER_METHODS = ("grid", "dbscan")
 
@@ -385,3 +386,56 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
             z_max=float(z_high[old])))
     return ObstacleSet(tuple(obstacles), cluster_ids, method, options)
 
+
+
+# ---------------------------------------------------------------------------------------------
+# scoring against instance truth
+
+#: SemanticKITTI classes scored as object instances: vehicles, people, riders (and their
+#: moving variants), trunk, pole, traffic sign
+SEMANTIC_KITTI_INSTANCE_CLASSES = (10, 11, 13, 15, 16, 18, 20, 30, 31, 32, 71, 80, 81,
+                                   252, 253, 254, 255, 256, 257, 258, 259)
+
+
+def instances_found(cluster_ids: np.ndarray, instance_ids: np.ndarray,
+                    min_points: int = 50) -> dict[int, bool]:
+    """Per true instance with at least ``min_points`` points: True when at least half of its
+    points lie in one obstacle. ``cluster_ids`` (N,) obstacle id per point (-1 none),
+    ``instance_ids`` (N,) true instance per point (-1 none)."""
+    cluster_ids = np.asarray(cluster_ids)
+    instance_ids = np.asarray(instance_ids)
+    out = {}
+    for k in np.unique(instance_ids[instance_ids >= 0]):
+        members = instance_ids == k
+        if members.sum() < min_points:
+            continue
+        c = cluster_ids[members]
+        c = c[c >= 0]
+        out[int(k)] = bool(len(c)) and bool(np.bincount(c).max() >= 0.5 * members.sum())
+    return out
+
+
+def semantic_kitti_instances(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Instance id per point of :data:`SEMANTIC_KITTI_INSTANCE_CLASSES`, -1 elsewhere, from
+    SemanticKITTI labels (semantic id in the lower 16 bits, instance in the upper 16).
+
+    Trunk, pole and traffic-sign points carry instance 0 in SemanticKITTI, so for classes
+    without instance ids an instance is a 0.5 m single-linkage connected component (Open3D
+    DBSCAN with one point) of that class's points.
+    """
+    import open3d as o3d
+
+    labels = np.asarray(labels, dtype=np.uint32)
+    semantic = labels & 0xFFFF
+    out = np.full(len(labels), -1, np.int64)
+    objects = np.isin(semantic, SEMANTIC_KITTI_INSTANCE_CLASSES)
+    with_id = objects & ((labels >> 16) > 0)
+    _, out[with_id] = np.unique(labels[with_id], return_inverse=True)
+    next_id = out.max() + 1
+    for cls in np.unique(semantic[objects & ~with_id]):
+        members = np.flatnonzero(objects & ~with_id & (semantic == cls))
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions[members]))
+        parts = np.asarray(pcd.cluster_dbscan(eps=0.5, min_points=1))
+        out[members] = parts + next_id
+        next_id += parts.max() + 1
+    return out

@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 
 from o3d_terrain.errors import ConfigError, InputError
+from o3d_terrain.evaluation.datasets import SEMANTIC_KITTI_GROUND
 from o3d_terrain.frame import as_frame
-from o3d_terrain.obstacles import detect_obstacles, oriented_box
+from o3d_terrain.obstacles import (detect_obstacles, instances_found, oriented_box,
+                                   semantic_kitti_instances)
 from o3d_terrain.segment import TerrainLabel, segment_points
 from o3d_terrain.spline import TerrainSurface, clamped_uniform_knots
 from o3d_terrain.stages import ObstacleDetector
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_lidar
-
-KITTI_OBJECTS = [10, 11, 13, 15, 16, 18, 20, 30, 31, 32, 71, 80, 81] + list(range(252, 260))
-KITTI_GROUND = [40, 44, 48, 49, 60, 72]
 
 
 def flat_surface(z=0.0, half=100.0) -> TerrainSurface:
@@ -32,19 +31,6 @@ def flat_scene_cloud():
     return scene, cloud
 
 
-def found_fraction(cluster_ids, truth_ids, min_points):
-    """Per true obstacle with enough points: True when half its points are in one cluster."""
-    out = {}
-    for k in np.unique(truth_ids[truth_ids >= 0]):
-        members = truth_ids == k
-        if members.sum() < min_points:
-            continue
-        c = cluster_ids[members]
-        c = c[c >= 0]
-        out[int(k)] = bool(len(c)) and np.bincount(c).max() >= 0.5 * members.sum()
-    return out
-
-
 def test_finds_every_obstacle_of_a_flat_scene(flat_scene_cloud):
     scene, cloud = flat_scene_cloud
     positions = cloud.world_positions
@@ -53,7 +39,7 @@ def test_finds_every_obstacle_of_a_flat_scene(flat_scene_cloud):
     for method in ("grid", "dbscan"):
         obstacles = detect_obstacles(positions, labels=labels, heights_above_terrain=heights,
                                      method=method)
-        found = found_fraction(obstacles.cluster_ids, cloud.obstacle_id, 50)
+        found = instances_found(obstacles.cluster_ids, cloud.obstacle_id, 50)
         assert found and all(found.values()), (method, found)
         for obstacle in obstacles:
             # no obstacle is made of terrain points
@@ -153,27 +139,6 @@ def test_stage_writes_obstacles_and_json(flat_scene_cloud, tmp_path):
     assert len(first["box"]["corners"]) == 4
 
 
-def kitti_instances(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Instance id per point of the object classes, -1 elsewhere. Classes without instance
-    ids in SemanticKITTI (trunk, pole, traffic sign: instance 0) are split into instances by
-    0.5 m single-linkage connectivity of that class's points."""
-    import open3d as o3d
-
-    semantic = labels & 0xFFFF
-    out = np.full(len(labels), -1, np.int64)
-    objects = np.isin(semantic, KITTI_OBJECTS)
-    with_id = objects & ((labels >> 16) > 0)
-    _, out[with_id] = np.unique(labels[with_id], return_inverse=True)
-    next_id = out.max() + 1
-    for cls in np.unique(semantic[objects & ~with_id]):
-        members = np.flatnonzero(objects & ~with_id & (semantic == cls))
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions[members]))
-        parts = np.asarray(pcd.cluster_dbscan(eps=0.5, min_points=1))
-        out[members] = parts + next_id
-        next_id += parts.max() + 1
-    return out
-
-
 @pytest.mark.realdata
 @pytest.mark.parametrize("frame_name", ["000000", "000001", "000002"])
 def test_semantic_kitti_instances_are_found(shared_data, frame_name):
@@ -186,10 +151,10 @@ def test_semantic_kitti_instances_are_found(shared_data, frame_name):
     surface = fit_terrain(positions)
     point_labels, heights = segment_points(surface, positions)
     obstacles = detect_obstacles(positions, labels=point_labels, heights_above_terrain=heights)
-    found = found_fraction(obstacles.cluster_ids, kitti_instances(labels, positions), 50)
+    found = instances_found(obstacles.cluster_ids, semantic_kitti_instances(labels, positions), 50)
     assert len(found) >= 10
     assert sum(found.values()) >= 0.95 * len(found), found
-    ground = np.isin(labels & 0xFFFF, KITTI_GROUND)
+    ground = np.isin(labels & 0xFFFF, SEMANTIC_KITTI_GROUND)
     mostly_ground = sum(1 for o in obstacles if ground[o.indices].mean() > 0.5)
     assert mostly_ground <= 3
     assert np.all(point_labels[obstacles.cluster_ids >= 0] == TerrainLabel.OBSTACLE)
