@@ -22,7 +22,6 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
 
 from o3d_terrain.api import fit_terrain  # noqa: E402
 from o3d_terrain.frame import as_frame  # noqa: E402
@@ -93,30 +92,20 @@ def kitti_detection(root: Path) -> None:
 
 
 def tracking() -> None:
-    from test_tracking import SENSOR_HEIGHT, flat_surface, majority
-
-    from o3d_terrain.tracking import synthetic_sequence, track_frames
+    from o3d_terrain.synthetic import sequence_ground, synthetic_sequence
+    from o3d_terrain.tracking import ObstacleTracker, score_tracks, track_frames
 
     frames = synthetic_sequence(frames=20, seed=0)
     for label, detect in (("exact ground", lambda f: detect_obstacles(
-            f, surface=flat_surface(-SENSOR_HEIGHT))), ("fitted terrain", None)):
-        steps = track_frames(frames, detect=detect)
-        identities: dict[int, set] = {}
-        spurious = spurious_confirmed = 0
-        for frame, step in zip(frames, steps):
-            confirmed = {t.id for t in step.tracks}
-            for obstacle in step.obstacles:
-                truth = majority(frame.truth[obstacle.indices])
-                track = step.track_of_obstacle.get(obstacle.id)
-                if truth == -3:
-                    spurious += 1
-                    spurious_confirmed += track in confirmed
-                elif truth >= 0 and track in confirmed:
-                    identities.setdefault(truth, set()).add(track)
-        switches = sum(len(v) - 1 for v in identities.values())
-        print(f"tracking ({label}, {len(frames)} frames): {len(identities)}/5 obstacles "
-              f"tracked, {switches} identity switches, {spurious} one-frame spurious "
-              f"detections, {spurious_confirmed} confirmed")
+            f, surface=sequence_ground())), ("fitted terrain", None)):
+        for merge_distance in (0.5, 0.0):
+            steps = track_frames(frames, detect=detect,
+                                 tracker=ObstacleTracker(merge_distance=merge_distance))
+            score = score_tracks(frames, steps)
+            print(f"tracking ({label}, {len(frames)} frames, merge_distance {merge_distance}): "
+                  f"{score.tracked}/{score.detected} obstacles tracked, "
+                  f"{score.identity_switches} identity switches, {score.spurious} one-frame "
+                  f"spurious detections, {score.spurious_confirmed} confirmed")
 
 
 def main() -> None:

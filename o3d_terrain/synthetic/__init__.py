@@ -35,6 +35,7 @@ from .sensors import (
     terrain_rmse,
 )
 from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
+from .sequence import sequence_ground, synthetic_sequence
 
 __all__ = [
     "OBSTACLE", "OBSTACLE_SHAPES", "OUTLIER", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN",
@@ -43,3 +44,5 @@ __all__ = [
     "render_stereo_pair", "rotation_matrix", "sample_lidar", "sample_sequence", "sample_stereo",
     "section6_scene", "sensor_pose", "terrain_rmse", "texture", "value_noise",
 ]
+
+__all__ += ["sequence_ground", "synthetic_sequence"]  # from .sequence (tracking sequences)
