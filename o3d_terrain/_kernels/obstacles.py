@@ -500,3 +500,189 @@ def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell
             iy[t] = int(math.floor((positions[k, 1] - y_low) / cell_size))
             t += 1
     return members, points, ix, iy
+
+
+@numba.njit(cache=True)
+def _convex_hull(px, py, hull):
+    """Andrew's monotone chain (Andrew 1979): the convex hull of the points (px, py) into
+    ``hull`` (indices, counter-clockwise, no collinear vertices); returns the vertex count
+    (1 when all points coincide, 2 when they are collinear)."""
+    n = px.shape[0]
+    order = np.argsort(px, kind="mergesort")
+    start = 0  # equal x: sort the run by y (runs are short: insertion sort)
+    while start < n:
+        stop = start + 1
+        while stop < n and px[order[stop]] == px[order[start]]:
+            stop += 1
+        for a in range(start + 1, stop):
+            v = order[a]
+            b = a - 1
+            while b >= start and py[order[b]] > py[v]:
+                order[b + 1] = order[b]
+                b -= 1
+            order[b + 1] = v
+        start = stop
+    m = 0
+    for t in range(n):  # lower chain
+        k = order[t]
+        while m >= 2 and ((px[hull[m - 1]] - px[hull[m - 2]]) * (py[k] - py[hull[m - 2]])
+                          - (py[hull[m - 1]] - py[hull[m - 2]]) * (px[k] - px[hull[m - 2]])) <= 0:
+            m -= 1
+        hull[m] = k
+        m += 1
+    lower = m + 1
+    for t in range(n - 2, -1, -1):  # upper chain
+        k = order[t]
+        while m >= lower and ((px[hull[m - 1]] - px[hull[m - 2]]) * (py[k] - py[hull[m - 2]])
+                              - (py[hull[m - 1]] - py[hull[m - 2]])
+                              * (px[k] - px[hull[m - 2]])) <= 0:
+            m -= 1
+        hull[m] = k
+        m += 1
+    m -= 1  # the last point repeats the first
+    if m < 1:
+        m = 1
+    if m == 2 and px[hull[0]] == px[hull[1]] and py[hull[0]] == py[hull[1]]:
+        m = 1
+    return m
+
+
+@numba.njit(cache=True)
+def _outside_octagon(x, y, s0, s1, ox, oy, bx, by):
+    """Akl & Toussaint (1978) pre-filter: the points of ``x[s0:s1]``, ``y[s0:s1]`` (shifted by
+    -ox, -oy) not strictly inside the polygon of the extreme points along x, x + y, y, y - x,
+    -x, -x - y, -y, x - y, written to ``bx``, ``by``; returns their count. Hull vertices are
+    never strictly inside it, so the hull of the kept points is the hull of all."""
+    best = np.empty(8, np.int64)
+    value = np.full(8, -np.inf)
+    for k in range(s0, s1):
+        a = x[k] - ox
+        b = y[k] - oy
+        keys = (a, a + b, b, b - a, -a, -a - b, -b, a - b)
+        for d in range(8):
+            if keys[d] > value[d]:
+                value[d] = keys[d]
+                best[d] = k
+    # the octagon's vertices in counter-clockwise order (repeats allowed)
+    qx = np.empty(8)
+    qy = np.empty(8)
+    for d in range(8):
+        qx[d] = x[best[d]] - ox
+        qy[d] = y[best[d]] - oy
+    n = 0
+    for k in range(s0, s1):
+        a = x[k] - ox
+        b = y[k] - oy
+        inside = value[0] + value[4] > 0.0  # an octagon of one point holds nothing
+        for d in range(8):
+            e = (d + 1) % 8
+            ex = qx[e] - qx[d]
+            ey = qy[e] - qy[d]
+            if ex == 0.0 and ey == 0.0:
+                continue
+            if ex * (b - qy[d]) - ey * (a - qx[d]) <= 0.0:
+                inside = False
+                break
+        if not inside:
+            bx[n] = a
+            by[n] = b
+            n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def min_area_boxes(x, y, starts):
+    """The minimum-area rectangle of each group of points ``x[starts[g]:starts[g + 1]]``,
+    ``y[...]`` (Freeman & Shapira 1975: one side of the least-area enclosing rectangle lies
+    along a convex hull edge; every hull edge is tried).
+
+    Areas within a relative 1e-9 of each other count as equal, and of equal areas the
+    smallest perimeter wins (then the first edge): several edges can give the same area (all
+    three edges of an acute triangle give twice its area), and without a rule the choice
+    would follow rounding. ``cv2.minAreaRect`` (float32) picks among such ties by rounding,
+    so it can return another of the equal-area rectangles.
+
+    Computed in float64 on coordinates relative to each group's first point. Returns
+    ``centers`` (G, 2), ``sizes`` (G, 2) as (length, width) with length >= width, and
+    ``yaws`` (G,) in degrees, the direction of the length in (-90, 90] (for length == width,
+    the direction of the side along the chosen hull edge). A group of coincident points gives
+    size (0, 0) and yaw 90; collinear points give width 0 and the line's direction.
+    """
+    g_count = starts.shape[0] - 1
+    centers = np.empty((g_count, 2))
+    sizes = np.empty((g_count, 2))
+    yaws = np.empty(g_count)
+    largest = 0
+    for g in range(g_count):
+        largest = max(largest, starts[g + 1] - starts[g])
+    hull = np.empty(largest + 1, np.int64)
+    bx = np.empty(largest)
+    by = np.empty(largest)
+    to_deg = 180.0 / math.pi
+    for g in range(g_count):
+        s0 = starts[g]
+        s1 = starts[g + 1]
+        ox = x[s0]
+        oy = y[s0]
+        n = _outside_octagon(x, y, s0, s1, ox, oy, bx, by)
+        px = bx[:n]
+        py = by[:n]
+        m = _convex_hull(px, py, hull)
+        if m == 1:
+            centers[g, 0] = ox + px[hull[0]]
+            centers[g, 1] = oy + py[hull[0]]
+            sizes[g, 0] = 0.0
+            sizes[g, 1] = 0.0
+            yaws[g] = 90.0  # as cv2.minAreaRect
+            continue
+        best = np.inf
+        best_perimeter = np.inf
+        bu0 = bu1 = bv0 = bv1 = ux_best = uy_best = 0.0
+        edges = m if m > 2 else 1
+        for e in range(edges):
+            a = hull[e]
+            b = hull[(e + 1) % m]
+            ex = px[b] - px[a]
+            ey = py[b] - py[a]
+            length = math.sqrt(ex * ex + ey * ey)
+            ux = ex / length
+            uy = ey / length
+            u0 = np.inf
+            u1 = -np.inf
+            v0 = np.inf
+            v1 = -np.inf
+            for t in range(m):
+                k = hull[t]
+                u = px[k] * ux + py[k] * uy
+                v = -px[k] * uy + py[k] * ux
+                u0 = min(u0, u)
+                u1 = max(u1, u)
+                v0 = min(v0, v)
+                v1 = max(v1, v)
+            area = (u1 - u0) * (v1 - v0)
+            perimeter = (u1 - u0) + (v1 - v0)
+            if area < best * (1.0 - 1e-9) or (area <= best * (1.0 + 1e-9)
+                                               and perimeter < best_perimeter):
+                best = area
+                best_perimeter = perimeter
+                bu0, bu1, bv0, bv1, ux_best, uy_best = u0, u1, v0, v1, ux, uy
+        cu = 0.5 * (bu0 + bu1)
+        cv = 0.5 * (bv0 + bv1)
+        centers[g, 0] = ox + cu * ux_best - cv * uy_best
+        centers[g, 1] = oy + cu * uy_best + cv * ux_best
+        along = bu1 - bu0
+        across = bv1 - bv0
+        if along >= across:
+            sizes[g, 0] = along
+            sizes[g, 1] = across
+            yaw = math.atan2(uy_best, ux_best) * to_deg
+        else:
+            sizes[g, 0] = across
+            sizes[g, 1] = along
+            yaw = math.atan2(ux_best, -uy_best) * to_deg
+        while yaw > 90.0:
+            yaw -= 180.0
+        while yaw <= -90.0:
+            yaw += 180.0
+        yaws[g] = yaw
+    return centers, sizes, yaws
