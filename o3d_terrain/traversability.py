@@ -452,9 +452,9 @@ def traversability_cost(surface, cloud: Any = None, *,
     xc = x_min + (np.arange(nx) + 0.5) * cell_size
     yc = y_min + (np.arange(ny) + 0.5) * cell_size
 
-    # step and roughness from the points, occupancy from the obstacles
-    count = rn = np.zeros((nx, ny), np.int32)
-    highest = rs2 = np.zeros((nx, ny))
+    # step and roughness from the points (in the cells holding points), occupancy from the
+    # obstacles
+    slot = None
     occupied = np.zeros((nx, ny), bool)
     lethal_step = profile.lethal_step
     if cloud is not None:
@@ -470,7 +470,7 @@ def traversability_cost(surface, cloud: Any = None, *,
             ix, iy = _k.bin_points(np.ascontiguousarray(positions[:, 0]),
                                    np.ascontiguousarray(positions[:, 1]),
                                    x_min, y_min, cell_size, nx, ny)
-            count, highest, rn, rs2 = _k.cell_moments(
+            slot, count, highest, rn, rs2 = _k.observed_cells(
                 ix, iy, np.ascontiguousarray(heights), use, nx, ny, lethal_step)
             if obstacles is not None:
                 tall = [o for o in obstacles if o.height > lethal_step]
@@ -483,15 +483,28 @@ def traversability_cost(surface, cloud: Any = None, *,
                                       np.array([o.box_yaw_deg for o in tall], np.float64),
                                       float(x_min), float(y_min), float(cell_size), occupied)
 
-    # the cost formula, with the slope from the surface's analytic derivatives
+    # the cost formula, with the slope from the surface's analytic derivatives: at the cells
+    # holding points (the others are UNKNOWN), or everywhere for a slope-only map
     x0, y0, _ = surface.origin
-    slope_rad = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
-                                      surface.degree, surface.control_points, surface.weights,
-                                      1e-9)
-    np.arctan(slope_rad, out=slope_rad)  # vectorised, unlike a per-cell atan in a kernel
+    slope_only = cloud is None
+    if slot is None:
+        slot = np.full((nx, ny), -1, np.int32)
+        count = rn = np.zeros(0, np.int32)
+        highest = rs2 = np.zeros(0)
+    if slope_only:
+        slope_grid = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
+                                           surface.degree, surface.control_points,
+                                           surface.weights, 1e-9)
+        np.arctan(slope_grid, out=slope_grid)  # vectorised, unlike a per-cell atan in a kernel
+    else:
+        slope_grid = np.zeros((1, 1))
+    entry_slope = _k.slope_at_cells(xc - x0, yc - y0, slot, len(count), surface.knots_x,
+                                    surface.knots_y, surface.degree, surface.control_points,
+                                    surface.weights, 1e-9)
     slope, step, rough, cost, lethal, state = _k.cost_cells(
-        slope_rad, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
-        profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE, UNKNOWN)
+        slot, entry_slope, count, highest, rn, rs2, occupied, profile.max_slope_deg,
+        lethal_step, profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE,
+        UNKNOWN, slope_only, slope_grid)
 
     # inflation by the footprint
     if lethal.any():

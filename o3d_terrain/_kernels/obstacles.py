@@ -174,17 +174,24 @@ def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
 
 
 @numba.njit(cache=True)
-def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
-    """Per-cell count, highest h, and count and sum of squares of h over points with
-    h <= rough_cap (the roughness moments of the cost map).
+def observed_cells(ix, iy, h, use, nx, ny, rough_cap):
+    """The cells holding points and their moments, stored compactly: ``slot`` (nx, ny) int32,
+    the index of the cell's entry or -1 without a point, and per entry the point count, the
+    highest h, and the count and sum of squares of h over points with h <= rough_cap (the
+    roughness moments of the cost map). Entries are numbered in the order their first point
+    comes, and every sum runs over the points in input order.
 
-    Only points with ``use[k]``, a cell (ix >= 0) and a finite h count.
+    Only points with ``use[k]``, a cell (ix >= 0) and a finite h count. One int32 grid
+    instead of four whole-grid moment arrays (a few percent of the cells hold points).
     """
-    count = np.zeros((nx, ny), np.int32)
-    highest = np.full((nx, ny), -np.inf)
-    rough_n = np.zeros((nx, ny), np.int32)
-    rough_sum2 = np.zeros((nx, ny))
-    for k in range(ix.shape[0]):
+    slot = np.full((nx, ny), -1, np.int32)
+    n = ix.shape[0]
+    count = np.empty(n, np.int32)
+    highest = np.empty(n)
+    rough_n = np.empty(n, np.int32)
+    rough_sum2 = np.empty(n)
+    m = 0
+    for k in range(n):
         i = ix[k]
         if i < 0 or not use[k]:
             continue
@@ -192,13 +199,22 @@ def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
         if not math.isfinite(v):
             continue
         j = iy[k]
-        count[i, j] += 1
-        if v > highest[i, j]:
-            highest[i, j] = v
+        e = slot[i, j]
+        if e < 0:
+            e = m
+            slot[i, j] = m
+            m += 1
+            count[e] = 0
+            highest[e] = -np.inf
+            rough_n[e] = 0
+            rough_sum2[e] = 0.0
+        count[e] += 1
+        if v > highest[e]:
+            highest[e] = v
         if v <= rough_cap:
-            rough_n[i, j] += 1
-            rough_sum2[i, j] += v * v
-    return count, highest, rough_n, rough_sum2
+            rough_n[e] += 1
+            rough_sum2[e] += v * v
+    return slot, count[:m], highest[:m], rough_n[:m], rough_sum2[:m]
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -282,22 +298,111 @@ def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
     return out
 
 
+@numba.njit(cache=True, error_model="numpy")
+def slope_at_cells(x, y, slot, n_entries, knots_x, knots_y, degree, control, weights, tol):
+    """atan |grad S| (radians) of the rational surface at the nodes (x[i], y[j]) (local
+    coordinates) where ``slot[i, j] >= 0``, as an array over the ``n_entries`` entries
+    (:func:`observed_cells`); NaN outside the knot range widened by ``tol``.
+
+    The same sums in the same order as :func:`gradient_norm_grid` (the y contraction tabulated
+    once for all columns, then degree + 1 scaled terms per node), so |grad S| is identical
+    where both compute it; the work is proportional to the nodes asked for, not the grid.
+    """
+    nx = x.shape[0]
+    ny = y.shape[0]
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    out = np.full(n_entries, np.nan)
+    rows = np.zeros(nx, np.bool_)
+    columns = np.zeros(ny, np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            if slot[i, j] >= 0:
+                rows[i] = True
+                columns[j] = True
+    span_y, by, dby = _bs.basis_first_derivative_table(y, n1, p, knots_y, tol)
+    rq = weights * control
+    t_a = np.empty((n0, ny))
+    t_d = np.empty((n0, ny))
+    t_ay = np.empty((n0, ny))
+    t_dy = np.empty((n0, ny))
+    for a in range(n0):
+        for j in range(ny):
+            sy = span_y[j]
+            if not columns[j] or sy < 0:
+                continue
+            va = 0.0
+            vd = 0.0
+            vay = 0.0
+            vdy = 0.0
+            for k in range(p + 1):
+                b = sy - p + k
+                va += by[j, k] * rq[a, b]
+                vd += by[j, k] * weights[a, b]
+                vay += dby[j, k] * rq[a, b]
+                vdy += dby[j, k] * weights[a, b]
+            t_a[a, j] = va
+            t_d[a, j] = vd
+            t_ay[a, j] = vay
+            t_dy[a, j] = vdy
+    bx = np.empty(p + 1)
+    dbx = np.empty(p + 1)
+    lft = np.empty(p + 1)
+    rgt = np.empty(p + 1)
+    for i in range(nx):
+        if not rows[i]:
+            continue
+        sx = _bs.clamped_basis_first_derivative(x[i], n0, p, knots_x, tol, bx, dbx, lft, rgt)
+        if sx < 0:
+            continue
+        for j in range(ny):
+            e = slot[i, j]
+            if e < 0 or span_y[j] < 0:
+                continue
+            s_a = 0.0
+            s_d = 0.0
+            s_ax = 0.0
+            s_dx = 0.0
+            s_ay = 0.0
+            s_dy = 0.0
+            for k in range(p + 1):
+                a = sx - p + k
+                u = bx[k]
+                du = dbx[k]
+                s_a += u * t_a[a, j]
+                s_d += u * t_d[a, j]
+                s_ax += du * t_a[a, j]
+                s_dx += du * t_d[a, j]
+                s_ay += u * t_ay[a, j]
+                s_dy += u * t_dy[a, j]
+            s = s_a / s_d
+            gx = (s_ax - s * s_dx) / s_d
+            gy = (s_ay - s * s_dy) / s_d
+            out[e] = math.atan(math.sqrt(gx * gx + gy * gy))
+    return out
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
+def cost_cells(slot, entry_slope, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
                lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost, free_state,
-               unknown_state):
+               unknown_state, slope_of_unknown, slope_grid):
     """The cost formula of docs/obstacles.md on every cell, before inflation.
 
-    ``slope_rad`` (float64, NaN outside the surface) is atan |grad S| in radians (the
-    arctangent is taken outside, vectorised, on :func:`gradient_norm_grid`); step =
-    max(0, highest), roughness = RMS (NaN where the cell has no point). Returns float32
-    ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit, step over
-    the lethal step, or occupied) and uint8 ``state`` (``free_state`` where the cell has a
-    point, else ``unknown_state``). Decisions are taken in float64. Rows are split over
+    ``slot`` and the per-entry ``count``, ``highest``, ``rough_n``, ``rough_sum2`` are the
+    cells holding points (:func:`observed_cells`); ``entry_slope`` their atan |grad S| in
+    radians (:func:`slope_at_cells`; NaN outside the surface); step = max(0, highest),
+    roughness = RMS. Returns float32 ``slope``, ``step``, ``rough``, ``cost`` (NaN where
+    undefined), bool ``lethal`` (slope over the limit, step over the lethal step, or occupied)
+    and uint8 ``state`` (``free_state`` where the cell has a point, else ``unknown_state``). A
+    cell without a point costs ``unknown_cost``, has NaN slope and is lethal only when
+    occupied; with ``slope_of_unknown`` (a slope-only map) it takes its slope from
+    ``slope_grid`` (radians, the whole grid), costs max(slope term, ``unknown_cost``) and is
+    lethal over the slope limit too. Decisions are taken in float64. Rows are split over
     threads; every cell is computed alone, so the result does not depend on the thread count.
     """
-    nx = slope_rad.shape[0]
-    ny = slope_rad.shape[1]
+    nx = slot.shape[0]
+    ny = slot.shape[1]
     slope = np.empty((nx, ny), np.float32)
     step = np.empty((nx, ny), np.float32)
     rough = np.empty((nx, ny), np.float32)
@@ -308,7 +413,16 @@ def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slo
     to_deg = 180.0 / math.pi
     for i in numba.prange(nx):
         for j in range(ny):
-            sl = slope_rad[i, j] * to_deg
+            e = slot[i, j]
+            if e < 0 and not slope_of_unknown:
+                slope[i, j] = np.nan
+                step[i, j] = np.nan
+                rough[i, j] = np.nan
+                cost[i, j] = unknown_cost
+                state[i, j] = unknown_state
+                lethal[i, j] = occupied[i, j]
+                continue
+            sl = (entry_slope[e] if e >= 0 else slope_grid[i, j]) * to_deg
             if math.isnan(sl):
                 slope_term = 1.0
                 is_lethal = False
@@ -316,29 +430,26 @@ def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slo
                 slope_term = (sl / max_slope_deg) ** 2
                 is_lethal = sl > max_slope_deg
             slope[i, j] = sl
-            known = count[i, j] > 0
-            if known:
-                st = max(highest[i, j], 0.0)
-                step[i, j] = st
-                step_term = (st / lethal_step) ** 2
-                is_lethal = is_lethal or st > lethal_step
-                state[i, j] = free_state
-            else:
+            if e < 0:
                 step[i, j] = np.nan
-                step_term = 0.0
+                rough[i, j] = np.nan
                 state[i, j] = unknown_state
-            if rough_n[i, j] > 0:
-                ro = math.sqrt(rough_sum2[i, j] / rough_n[i, j])
+                cost[i, j] = max(w_slope * slope_term / total, unknown_cost)
+                lethal[i, j] = is_lethal or occupied[i, j]
+                continue
+            st = max(highest[e], 0.0)
+            step[i, j] = st
+            step_term = (st / lethal_step) ** 2
+            is_lethal = is_lethal or st > lethal_step
+            state[i, j] = free_state
+            if rough_n[e] > 0:
+                ro = math.sqrt(rough_sum2[e] / rough_n[e])
                 rough[i, j] = ro
                 rough_term = min(ro / max_roughness, 1.0) ** 2
             else:
                 rough[i, j] = np.nan
                 rough_term = 0.0
-            if known:
-                cost[i, j] = (w_slope * slope_term + w_step * step_term
-                              + w_rough * rough_term) / total
-            else:
-                cost[i, j] = max(w_slope * slope_term / total, unknown_cost)
+            cost[i, j] = (w_slope * slope_term + w_step * step_term + w_rough * rough_term) / total
             lethal[i, j] = is_lethal or occupied[i, j]
     return slope, step, rough, cost, lethal, state
 
