@@ -394,6 +394,23 @@ def _check_positive(name: str, value, *, allow_zero: bool = False, high: float |
     return None
 
 
+def _tall_obstacles(obstacles, n: int, lethal_step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per point the index of its obstacle in ``obstacles`` (-1 none), and per obstacle
+    whether it is taller than the lethal step. An ObstacleSet of this cloud already carries
+    the first (``cluster_ids``: obstacle g is ``obstacles[g]``); other sequences of obstacles
+    are mapped through their ``indices``."""
+    if obstacles is None:
+        return np.full(n, -1, np.int32), np.zeros(0, bool)
+    tall = np.array([o.height > lethal_step for o in obstacles], bool)
+    ids = getattr(obstacles, "cluster_ids", None)
+    if ids is not None and len(ids) == n:
+        return np.ascontiguousarray(ids, dtype=np.int32), tall
+    point_obstacle = np.full(n, -1, np.int32)
+    for g, obstacle in enumerate(obstacles):
+        point_obstacle[np.asarray(obstacle.indices, np.int64)] = g
+    return point_obstacle, tall
+
+
 def traversability_cost(surface, cloud: Any = None, *,
                         vehicle: str | Path | VehicleProfile = "offroad_suv",
                         cell_size: float = 0.25,
@@ -464,24 +481,19 @@ def traversability_cost(surface, cloud: Any = None, *,
         if len(frame):
             heights, point_labels = resolve_heights_and_labels(
                 frame, surface, labels, heights_above_terrain)
-            positions = frame.positions
-            use = (point_labels != TerrainLabel.BELOW_TERRAIN) \
-                & (point_labels != TerrainLabel.UNKNOWN) & (heights <= profile.vehicle_height)
-            ix, iy = _k.bin_points(np.ascontiguousarray(positions[:, 0]),
-                                   np.ascontiguousarray(positions[:, 1]),
-                                   x_min, y_min, cell_size, nx, ny)
+            point_obstacle, tall = _tall_obstacles(obstacles, len(frame), lethal_step)
             slot, count, highest, rn, rs2 = _k.observed_cells(
-                ix, iy, np.ascontiguousarray(heights), use, nx, ny, lethal_step)
-            if obstacles is not None:
-                tall = [o for o in obstacles if o.height > lethal_step]
-                if tall:
-                    _k.mark_points(ix, iy, np.concatenate(
-                        [np.asarray(o.indices, np.int64) for o in tall]), occupied)
-                    if fill_obstacle_boxes:
-                        _k.fill_boxes(np.array([o.box_center for o in tall], np.float64),
-                                      np.array([o.box_size for o in tall], np.float64),
-                                      np.array([o.box_yaw_deg for o in tall], np.float64),
-                                      float(x_min), float(y_min), float(cell_size), occupied)
+                frame.positions, np.ascontiguousarray(point_labels),
+                np.ascontiguousarray(heights, dtype=np.float64), point_obstacle, tall,
+                float(x_min), float(y_min), float(cell_size), nx, ny,
+                int(TerrainLabel.BELOW_TERRAIN), int(TerrainLabel.UNKNOWN),
+                profile.vehicle_height, lethal_step, occupied)
+            if fill_obstacle_boxes and tall.any():
+                boxes = [o for o, is_tall in zip(obstacles, tall) if is_tall]
+                _k.fill_boxes(np.array([o.box_center for o in boxes], np.float64),
+                              np.array([o.box_size for o in boxes], np.float64),
+                              np.array([o.box_yaw_deg for o in boxes], np.float64),
+                              float(x_min), float(y_min), float(cell_size), occupied)
 
     # the cost formula, with the slope from the surface's analytic derivatives: at the cells
     # holding points (the others are UNKNOWN), or everywhere for a slope-only map

@@ -126,15 +126,6 @@ def labels_at(labels, ix, iy, offset):
 
 
 @numba.njit(cache=True)
-def mark_points(ix, iy, indices, occupied):
-    """occupied[ix[k], iy[k]] = True for every k in ``indices`` with a cell (ix[k] >= 0)."""
-    for t in range(indices.shape[0]):
-        k = indices[t]
-        if ix[k] >= 0:
-            occupied[ix[k], iy[k]] = True
-
-
-@numba.njit(cache=True)
 def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
     """Mark the cells whose centre lies in an oriented box grown by half a cell.
 
@@ -174,31 +165,45 @@ def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
 
 
 @numba.njit(cache=True)
-def observed_cells(ix, iy, h, use, nx, ny, rough_cap):
-    """The cells holding points and their moments, stored compactly: ``slot`` (nx, ny) int32,
-    the index of the cell's entry or -1 without a point, and per entry the point count, the
-    highest h, and the count and sum of squares of h over points with h <= rough_cap (the
-    roughness moments of the cost map). Entries are numbered in the order their first point
-    comes, and every sum runs over the points in input order.
+def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_min, cell_size,
+                   nx, ny, skip_a, skip_b, vehicle_height, rough_cap, occupied):
+    """The points of a cloud put into the cost map's cells, in one pass.
 
-    Only points with ``use[k]``, a cell (ix >= 0) and a finite h count. One int32 grid
-    instead of four whole-grid moment arrays (a few percent of the cells hold points).
+    A point's cell is (floor((x - x_min) / cell_size), floor((y - y_min) / cell_size)), as
+    :func:`bin_points`. Marks ``occupied`` at the cells of the points of tall obstacles
+    (``point_obstacle[k] >= 0`` and ``tall[point_obstacle[k]]``). The points that count for
+    step and roughness (label neither ``skip_a`` nor ``skip_b``, height finite and <=
+    ``vehicle_height``) give the cells holding points and their moments, stored compactly:
+    ``slot`` (nx, ny) int32, the index of the cell's entry or -1, and per entry the point
+    count, the highest height, and the count and sum of squares of the heights <=
+    ``rough_cap`` (the roughness moments). Entries are numbered in the order of their first
+    point, and sums run over the points in input order. One int32 grid instead of four
+    whole-grid moment arrays (a few percent of the cells hold points).
     """
     slot = np.full((nx, ny), -1, np.int32)
-    n = ix.shape[0]
+    n = positions.shape[0]
     count = np.empty(n, np.int32)
     highest = np.empty(n)
     rough_n = np.empty(n, np.int32)
     rough_sum2 = np.empty(n)
     m = 0
     for k in range(n):
-        i = ix[k]
-        if i < 0 or not use[k]:
+        fx = (positions[k, 0] - x_min) / cell_size
+        fy = (positions[k, 1] - y_min) / cell_size
+        if not (math.isfinite(fx) and math.isfinite(fy)):
             continue
-        v = h[k]
-        if not math.isfinite(v):
+        i = int(math.floor(fx))
+        j = int(math.floor(fy))
+        if i < 0 or j < 0 or i >= nx or j >= ny:
             continue
-        j = iy[k]
+        g = point_obstacle[k]
+        if g >= 0 and tall[g]:
+            occupied[i, j] = True
+        if labels[k] == skip_a or labels[k] == skip_b:
+            continue
+        v = heights[k]
+        if not (math.isfinite(v) and v <= vehicle_height):
+            continue
         e = slot[i, j]
         if e < 0:
             e = m
