@@ -239,8 +239,10 @@ def _grid_size(ix: np.ndarray, iy: np.ndarray, cell_size: float) -> tuple[int, i
     return nx, ny
 
 
-def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int, ny: int) -> np.ndarray:
-    """Component id (0..K-1) of each point: 8-connected occupied cells."""
+def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int,
+                     ny: int) -> tuple[np.ndarray, np.ndarray]:
+    """Component id (0..K-1) of each point (8-connected occupied cells), and the (nx, ny)
+    int32 label image (component id + 1, 0 for empty cells)."""
     import cv2
 
     mask = _k.occupancy_mask(ix, iy, nx, ny)
@@ -250,7 +252,8 @@ def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int, ny: int) -> np.nda
         components, _ = ndimage.label(mask, structure=np.ones((3, 3)))
     else:
         _, components = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-    return _k.labels_at(components, ix, iy, -1)
+    components = np.ascontiguousarray(components, dtype=np.int32)
+    return _k.labels_at(components, ix, iy, -1), components
 
 
 def _dbscan_components(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
@@ -261,23 +264,18 @@ def _dbscan_components(points: np.ndarray, eps: float, min_points: int) -> np.nd
 
 
 def _hull_candidates(points: np.ndarray, cluster: np.ndarray, ix, iy, nx: int, ny: int,
-                     n_clusters: int, grid_method: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate hull points grouped by cluster: (order, starts) over point indices.
-
-    Cells are keyed by (cluster, cell), so clusters that share a cell (DBSCAN) stay apart.
+                     n_clusters: int) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate hull points grouped by cluster: (order, starts) over point indices, for
+    clusterings where clusters may share a cell (DBSCAN): cells are keyed by (cluster, cell).
     """
-    if grid_method:  # the cluster is a function of the cell
-        candidates = _k.hull_candidates_by_cell(cluster, ix, iy, ny, nx * ny,
-                                                points[:, 0], points[:, 1])
-    else:
-        inside = cluster >= 0
-        key = cluster * (nx * ny) + ix * ny + iy
-        unique, rank = np.unique(key[inside], return_inverse=True)
-        cell = np.zeros(len(points), np.int64)
-        cell[inside] = rank
-        sub = np.flatnonzero(inside)
-        best = _k.hull_candidates(cell[sub], points[sub, 0], points[sub, 1], len(unique))
-        candidates = np.unique(sub[best[best >= 0]])
+    inside = cluster >= 0
+    key = cluster * (nx * ny) + ix * ny + iy
+    unique, rank = np.unique(key[inside], return_inverse=True)
+    cell = np.zeros(len(points), np.int64)
+    cell[inside] = rank
+    sub = np.flatnonzero(inside)
+    best = _k.hull_candidates(cell[sub], points[sub, 0], points[sub, 1], len(unique))
+    candidates = np.unique(sub[best[best >= 0]])
     order, starts = _k.group_by(cluster[candidates], n_clusters)
     return candidates[order], starts
 
@@ -329,7 +327,7 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
         return ObstacleSet((), cluster_ids, method, options)
     nx, ny = _grid_size(ix, iy, float(cell_size))
     if method == "grid":
-        component = _grid_components(ix, iy, nx, ny)
+        component, cell_labels = _grid_components(ix, iy, nx, ny)
     else:
         component = _dbscan_components(points, float(eps), min(3, int(min_points)))
     n_components = int(component.max()) + 1 if len(component) else 0
@@ -342,9 +340,13 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     point_ids = np.where(component >= 0, new_id[np.maximum(component, 0)], -1)
     cluster_ids[members] = point_ids
     order, starts = _k.group_by(point_ids, len(kept))
-    hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept),
-                                         method == "grid")
-    centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
+    if method == "grid":  # the cluster is a function of the cell
+        hull_x, hull_y, hull_starts = _k.grid_box_candidates(
+            point_ids, ix, iy, cell_labels, points[:, 0], points[:, 1], len(kept))
+        centers, sizes, yaws = _k.min_area_boxes(hull_x, hull_y, hull_starts)
+    else:
+        hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept))
+        centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
     indices_all = members[order]
     centroids = sums[kept] / count[kept][:, None]
     obstacles = _obstacles_from_arrays(indices_all, starts, centroids, centers, sizes, yaws,

@@ -543,33 +543,51 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
 
 
 @numba.njit(cache=True)
-def hull_candidates_by_cell(cluster, ix, iy, ny, n_cells, x, y):
-    """Sorted indices of the points extreme along x, y, x + y and x - y (both signs) in their
-    cell, over the points with ``cluster >= 0`` (cell = ix * ny + iy, < n_cells).
+def grid_box_candidates(cluster, ix, iy, cell_labels, x, y, n_clusters):
+    """The points extreme along x, y, x + y and x - y (both signs) in their cell
+    (:func:`hull_candidates`), over the points with ``cluster >= 0``, for clusterings where
+    every cell belongs to one cluster (the grid clustering).
 
-    The same candidates as :func:`hull_candidates` on cells ranked in point order (ties go to
-    the first point), for clusterings where every cell belongs to one cluster.
+    The connected-components label image (``cell_labels`` (nx, ny) int32, > 0 at occupied
+    cells) serves as the per-cell slot table: it is overwritten (the cells of kept clusters
+    get -1 - slot) instead of filling a fresh whole-grid table. Slots are numbered in point
+    order and ties go to the first point. Returns the candidates' x, y grouped by cluster, in
+    point order within a cluster, and ``starts`` (n_clusters + 1,).
     """
-    slot = np.full(n_cells, -1, np.int32)
+    m = cluster.shape[0]
     n_slots = 0
-    for k in range(cluster.shape[0]):
+    for k in range(m):
         if cluster[k] >= 0:
-            c = ix[k] * ny + iy[k]
-            if slot[c] < 0:
-                slot[c] = n_slots
+            if cell_labels[ix[k], iy[k]] > 0:
+                cell_labels[ix[k], iy[k]] = -1 - n_slots
                 n_slots += 1
     best = np.full((n_slots, 8), -1, np.int64)
     value = np.empty((n_slots, 8))
-    for k in range(cluster.shape[0]):
+    for k in range(m):
         if cluster[k] < 0:
             continue
-        c = slot[ix[k] * ny + iy[k]]
+        c = -1 - cell_labels[ix[k], iy[k]]
         _keep_extremes(best, value, c, k, x[k], y[k])
-    mark = np.zeros(cluster.shape[0], np.bool_)
+    mark = np.zeros(m, np.bool_)
     for c in range(n_slots):
         for d in range(8):
             mark[best[c, d]] = True
-    return np.flatnonzero(mark)
+    starts = np.zeros(n_clusters + 1, np.int64)
+    for k in range(m):
+        if mark[k]:
+            starts[cluster[k] + 1] += 1
+    for g in range(n_clusters):
+        starts[g + 1] += starts[g]
+    fill = starts[:-1].copy()
+    cx = np.empty(starts[n_clusters])
+    cy = np.empty(starts[n_clusters])
+    for k in range(m):
+        if mark[k]:
+            g = cluster[k]
+            cx[fill[g]] = x[k]
+            cy[fill[g]] = y[k]
+            fill[g] += 1
+    return cx, cy, starts
 
 
 @numba.njit(cache=True)
