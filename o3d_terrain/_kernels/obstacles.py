@@ -388,7 +388,7 @@ def slope_at_cells(x, y, slot, n_entries, knots_x, knots_y, degree, control, wei
     return out
 
 
-@numba.njit(cache=True, parallel=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def cost_cells(slot, entry_slope, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
                lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost, free_state,
                unknown_state, slope_of_unknown, slope_grid):
@@ -403,8 +403,9 @@ def cost_cells(slot, entry_slope, count, highest, rough_n, rough_sum2, occupied,
     cell without a point costs ``unknown_cost``, has NaN slope and is lethal only when
     occupied; with ``slope_of_unknown`` (a slope-only map) it takes its slope from
     ``slope_grid`` (radians, the whole grid), costs max(slope term, ``unknown_cost``) and is
-    lethal over the slope limit too. Decisions are taken in float64. Rows are split over
-    threads; every cell is computed alone, so the result does not depend on the thread count.
+    lethal over the slope limit too. Decisions are taken in float64. Serial: a fork-join
+    over threads gains ~0.3 ms on an idle second core and loses tens of milliseconds when
+    the cores are shared (threads waiting for one another), see docs/performance.md.
     """
     nx = slot.shape[0]
     ny = slot.shape[1]
@@ -416,7 +417,7 @@ def cost_cells(slot, entry_slope, count, highest, rough_n, rough_sum2, occupied,
     state = np.empty((nx, ny), np.uint8)
     total = w_slope + w_step + w_rough
     to_deg = 180.0 / math.pi
-    for i in numba.prange(nx):
+    for i in range(nx):
         for j in range(ny):
             e = slot[i, j]
             if e < 0 and not slope_of_unknown:
@@ -459,18 +460,18 @@ def cost_cells(slot, entry_slope, count, highest, rough_n, rough_sum2, occupied,
     return slope, step, rough, cost, lethal, state
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def row_squared_distance(lethal, reach):
     """Per row, the squared distance (in cells) along the row to the row's nearest ``lethal``
     cell, ``reach``² + 1 beyond ``reach`` cells (int32), and whether each row has a lethal
     cell: the first pass of the separable exact distance transform (Meijster et al. 2000;
-    Felzenszwalb & Huttenlocher 2012) cut off at ``reach``. Rows are split over threads."""
+    Felzenszwalb & Huttenlocher 2012) cut off at ``reach``."""
     nx = lethal.shape[0]
     ny = lethal.shape[1]
     far = reach * reach + 1
     along = np.empty((nx, ny), np.int32)
     row_lethal = np.zeros(nx, np.bool_)
-    for i in numba.prange(nx):
+    for i in range(nx):
         last = -(reach + 1)
         for j in range(ny):
             if lethal[i, j]:
@@ -486,7 +487,7 @@ def row_squared_distance(lethal, reach):
     return along, row_lethal
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radius,
             inflation_scale, inscribed_state, lethal_state):
     """Inflation by the footprint, in place: cells within ``inscribed_radius`` (m) of a lethal
@@ -502,7 +503,7 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
     within ``reach`` of a cell lies within ``reach`` rows and columns of it, so d² is exact
     up to ``reach``²; larger values are only upper bounds and count as beyond the
     circumscribed radius. d² takes at most ``reach``² + 1 values, so the least cost of each
-    is tabulated once. Rows are split over threads.
+    is tabulated once. Serial, as :func:`cost_cells`.
     """
     nx = cost.shape[0]
     ny = cost.shape[1]
@@ -518,28 +519,25 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
             least[k] = -1.0
         elif d <= circumscribed_radius:
             least[k] = 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale)
-    chunk = 16  # rows per task: one d² buffer per chunk
-    for c in numba.prange((nx + chunk - 1) // chunk):
-        d2 = np.empty(ny, np.int32)
-        first = np.int64(c) * chunk  # the prange index may be unsigned: -i would wrap
-        for i in range(first, min(first + chunk, nx)):
-            d2[:] = far
-            for a in range(max(-reach, -i), min(reach, nx - 1 - i) + 1):
-                if row_lethal[i + a]:
-                    a2 = a * a
-                    for j in range(ny):
-                        d2[j] = min(d2[j], a2 + along[i + a, j])
-            for j in range(ny):
-                if lethal[i, j]:
-                    state[i, j] = lethal_state
-                    cost[i, j] = 1.0
-                    continue
-                floor = least[min(d2[j], far)]
-                if floor < 0:
-                    state[i, j] = inscribed_state
-                    cost[i, j] = 1.0
-                else:
-                    cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
+    d2 = np.empty(ny, np.int32)
+    for i in range(nx):
+        d2[:] = far
+        for a in range(max(-reach, -i), min(reach, nx - 1 - i) + 1):
+            if row_lethal[i + a]:
+                a2 = a * a
+                for j in range(ny):
+                    d2[j] = min(d2[j], a2 + along[i + a, j])
+        for j in range(ny):
+            if lethal[i, j]:
+                state[i, j] = lethal_state
+                cost[i, j] = 1.0
+                continue
+            floor = least[min(d2[j], far)]
+            if floor < 0:
+                state[i, j] = inscribed_state
+                cost[i, j] = 1.0
+            else:
+                cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
 
 
 @numba.njit(cache=True)
