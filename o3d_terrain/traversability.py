@@ -17,7 +17,10 @@ at most max_step_height, the belly clears at most ground_clearance) and ρmax:
     LETHAL            if θ > θmax or s > s* or occupied
     cost = (wθ (θ/θmax)² + ws (s/s*)² + wρ min(ρ/ρmax, 1)²) / (wθ + ws + wρ)   otherwise
 
-Cells with no point are UNKNOWN: their cost is max(slope term, ``unknown_cost``). Lethal cells
+Cells with no point are UNKNOWN: they cost ``unknown_cost``, have no slope, step or roughness
+(NaN) and are lethal only when occupied; no work is spent on them beyond that fill. A
+slope-only map (no cloud) is the exception: every cell is UNKNOWN with the slope of the surface,
+cost max(slope term, ``unknown_cost``), and LETHAL over θmax. Lethal cells
 are inflated by the footprint: a cell whose centre is within the inscribed radius (half the
 width) of a lethal cell is INSCRIBED (cost 1: the vehicle's centre cannot be there); out to the
 circumscribed radius the cost is at least 0.99 exp(-(d - r_in) / inflation_scale). Costs are in
@@ -425,13 +428,15 @@ def traversability_cost(surface, cloud: Any = None, *,
 
     surface: a TerrainSurface (its analytic gradient gives the slope). cloud: the points
         (anything :func:`~o3d_terrain.frame.as_frame` accepts) for step, roughness and
-        occupancy; None = slope only (every cell UNKNOWN). vehicle: a built-in profile name, a
+        occupancy (cells without a point are UNKNOWN at ``unknown_cost``); None = slope only
+        (every cell UNKNOWN, with the slope term and slope lethality). vehicle: a built-in profile name, a
         YAML path or a :class:`VehicleProfile`. cell_size: cell side (m). region: (x_min, x_max,
         y_min, y_max); None = the surface's region. labels, heights_above_terrain: per-point
         arrays overriding the cloud's attributes (BELOW_TERRAIN and UNKNOWN points are left
         out). obstacles: an ObstacleSet (or a sequence of obstacles) whose cells, and boxes
         with ``fill_obstacle_boxes``, are occupied when taller than the lethal step.
-        unknown_cost: the least cost of a cell with no point, in [0, 1]. weights: (slope, step,
+        unknown_cost: the cost of a cell with no point (the least, on a slope-only map), in
+        [0, 1]. weights: (slope, step,
         roughness) weights, >= 0 with a positive sum. inflation_scale: decay length (m) of the
         cost beyond the inscribed radius.
     """
@@ -482,7 +487,7 @@ def traversability_cost(surface, cloud: Any = None, *,
             heights, point_labels = resolve_heights_and_labels(
                 frame, surface, labels, heights_above_terrain)
             point_obstacle, tall = _tall_obstacles(obstacles, len(frame), lethal_step)
-            slot, count, highest, rn, rs2 = _k.observed_cells(
+            slot, count, highest, rn, rs2, cell_i, cell_j = _k.observed_cells(
                 frame.positions, np.ascontiguousarray(point_labels),
                 np.ascontiguousarray(heights, dtype=np.float64), point_obstacle, tall,
                 float(x_min), float(y_min), float(cell_size), nx, ny,
@@ -501,7 +506,7 @@ def traversability_cost(surface, cloud: Any = None, *,
     slope_only = cloud is None
     if slot is None:
         slot = np.full((nx, ny), -1, np.int32)
-        count = rn = np.zeros(0, np.int32)
+        count = rn = cell_i = cell_j = np.zeros(0, np.int32)
         highest = rs2 = np.zeros(0)
     if slope_only:
         slope_grid = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
@@ -510,7 +515,7 @@ def traversability_cost(surface, cloud: Any = None, *,
         np.arctan(slope_grid, out=slope_grid)  # vectorised, unlike a per-cell atan in a kernel
     else:
         slope_grid = np.zeros((1, 1))
-    entry_slope = _k.slope_at_cells(xc - x0, yc - y0, slot, len(count), surface.knots_x,
+    entry_slope = _k.slope_at_cells(xc - x0, yc - y0, cell_i, cell_j, surface.knots_x,
                                     surface.knots_y, surface.degree, surface.control_points,
                                     surface.weights, 1e-9)
     slope, step, rough, cost, lethal, state = _k.cost_cells(

@@ -176,9 +176,10 @@ def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_mi
     ``vehicle_height``) give the cells holding points and their moments, stored compactly:
     ``slot`` (nx, ny) int32, the index of the cell's entry or -1, and per entry the point
     count, the highest height, and the count and sum of squares of the heights <=
-    ``rough_cap`` (the roughness moments). Entries are numbered in the order of their first
-    point, and sums run over the points in input order. One int32 grid instead of four
-    whole-grid moment arrays (a few percent of the cells hold points).
+    ``rough_cap`` (the roughness moments), and its cell (``cell_i``, ``cell_j``). Entries
+    are numbered in the order of their first point, and sums run over the points in input
+    order. One int32 grid instead of four whole-grid moment arrays (a few percent of the
+    cells hold points).
     """
     slot = np.full((nx, ny), -1, np.int32)
     n = positions.shape[0]
@@ -186,6 +187,8 @@ def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_mi
     highest = np.empty(n)
     rough_n = np.empty(n, np.int32)
     rough_sum2 = np.empty(n)
+    cell_i = np.empty(n, np.int32)
+    cell_j = np.empty(n, np.int32)
     m = 0
     for k in range(n):
         fx = (positions[k, 0] - x_min) / cell_size
@@ -208,6 +211,8 @@ def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_mi
         if e < 0:
             e = m
             slot[i, j] = m
+            cell_i[e] = i
+            cell_j[e] = j
             m += 1
             count[e] = 0
             highest[e] = -np.inf
@@ -219,7 +224,7 @@ def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_mi
         if v <= rough_cap:
             rough_n[e] += 1
             rough_sum2[e] += v * v
-    return slot, count[:m], highest[:m], rough_n[:m], rough_sum2[:m]
+    return slot, count[:m], highest[:m], rough_n[:m], rough_sum2[:m], cell_i[:m], cell_j[:m]
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -304,28 +309,35 @@ def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def slope_at_cells(x, y, slot, n_entries, knots_x, knots_y, degree, control, weights, tol):
-    """atan |grad S| (radians) of the rational surface at the nodes (x[i], y[j]) (local
-    coordinates) where ``slot[i, j] >= 0``, as an array over the ``n_entries`` entries
-    (:func:`observed_cells`); NaN outside the knot range widened by ``tol``.
+def slope_at_cells(x, y, cell_i, cell_j, knots_x, knots_y, degree, control, weights, tol):
+    """atan |grad S| (radians) of the rational surface at the nodes (x[cell_i[e]],
+    y[cell_j[e]]) (local coordinates) for every entry e (:func:`observed_cells`); NaN outside
+    the knot range widened by ``tol``.
 
     The same sums in the same order as :func:`gradient_norm_grid` (the y contraction tabulated
-    once for all columns, then degree + 1 scaled terms per node), so |grad S| is identical
-    where both compute it; the work is proportional to the nodes asked for, not the grid.
+    once for the columns asked for, then degree + 1 scaled terms per node, the x basis once
+    per row), so |grad S| is identical where both compute it; the work is proportional to the
+    nodes asked for, not the grid.
     """
     nx = x.shape[0]
     ny = y.shape[0]
     p = degree
     n0 = control.shape[0]
     n1 = control.shape[1]
-    out = np.full(n_entries, np.nan)
-    rows = np.zeros(nx, np.bool_)
+    m = cell_i.shape[0]
+    out = np.full(m, np.nan)
     columns = np.zeros(ny, np.bool_)
+    row_start = np.zeros(nx + 1, np.int64)  # the entries grouped by row (counting sort)
+    for e in range(m):
+        columns[cell_j[e]] = True
+        row_start[cell_i[e] + 1] += 1
     for i in range(nx):
-        for j in range(ny):
-            if slot[i, j] >= 0:
-                rows[i] = True
-                columns[j] = True
+        row_start[i + 1] += row_start[i]
+    fill = row_start[:-1].copy()
+    by_row = np.empty(m, np.int64)
+    for e in range(m):
+        by_row[fill[cell_i[e]]] = e
+        fill[cell_i[e]] += 1
     span_y, by, dby = _bs.basis_first_derivative_table(y, n1, p, knots_y, tol)
     rq = weights * control
     t_a = np.empty((n0, ny))
@@ -356,14 +368,15 @@ def slope_at_cells(x, y, slot, n_entries, knots_x, knots_y, degree, control, wei
     lft = np.empty(p + 1)
     rgt = np.empty(p + 1)
     for i in range(nx):
-        if not rows[i]:
+        if row_start[i] == row_start[i + 1]:
             continue
         sx = _bs.clamped_basis_first_derivative(x[i], n0, p, knots_x, tol, bx, dbx, lft, rgt)
         if sx < 0:
             continue
-        for j in range(ny):
-            e = slot[i, j]
-            if e < 0 or span_y[j] < 0:
+        for t in range(row_start[i], row_start[i + 1]):
+            e = by_row[t]
+            j = cell_j[e]
+            if span_y[j] < 0:
                 continue
             s_a = 0.0
             s_d = 0.0
