@@ -337,9 +337,8 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     kept = np.flatnonzero(keep)
     new_id = np.full(max(n_components, 1), -1, np.int64)
     new_id[kept] = np.arange(len(kept))
-    point_ids = np.where(component >= 0, new_id[np.maximum(component, 0)], -1)
-    cluster_ids[members] = point_ids
-    order, starts = _k.group_by(point_ids, len(kept))
+    point_ids, indices_all, starts = _k.relabel_points(component, new_id, members, cluster_ids,
+                                                       len(kept))
     if method == "grid":  # the cluster is a function of the cell
         hull_x, hull_y, hull_starts = _k.grid_box_candidates(
             point_ids, ix, iy, cell_labels, points[:, 0], points[:, 1], len(kept))
@@ -347,7 +346,6 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     else:
         hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept))
         centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
-    indices_all = members[order]
     centroids = sums[kept] / count[kept][:, None]
     obstacles = _obstacles_from_arrays(indices_all, starts, centroids, centers, sizes, yaws,
                                        h_high[kept], z_low[kept], z_high[kept])

@@ -108,6 +108,35 @@ def group_by(ids, n_groups):
 
 
 @numba.njit(cache=True)
+def relabel_points(component, new_id, members, cluster_ids, n_groups):
+    """The kept clusters' ids for the obstacle points, in one pass each: ``point_ids`` (M,),
+    ``new_id[component[k]]`` or -1 (``component`` -1 = none); ``cluster_ids[members[k]]``
+    set to it (in place); and the members grouped by id in point order, ``indices`` with
+    ``starts`` (n_groups + 1,), as :func:`group_by` on the ids followed by ``members[order]``.
+    """
+    m = component.shape[0]
+    point_ids = np.empty(m, np.int64)
+    starts = np.zeros(n_groups + 1, np.int64)
+    for k in range(m):
+        c = component[k]
+        g = new_id[c] if c >= 0 else -1
+        point_ids[k] = g
+        if g >= 0:
+            cluster_ids[members[k]] = g
+            starts[g + 1] += 1
+    for g in range(n_groups):
+        starts[g + 1] += starts[g]
+    fill = starts[:-1].copy()
+    indices = np.empty(starts[n_groups], np.int64)
+    for k in range(m):
+        g = point_ids[k]
+        if g >= 0:
+            indices[fill[g]] = members[k]
+            fill[g] += 1
+    return point_ids, indices, starts
+
+
+@numba.njit(cache=True)
 def occupancy_mask(ix, iy, nx, ny):
     """(nx, ny) uint8 mask, 1 at every cell (ix[k], iy[k]) (all inside the grid)."""
     mask = np.zeros((nx, ny), np.uint8)
