@@ -248,11 +248,10 @@ def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_mi
             rough_n[e] = 0
             rough_sum2[e] = 0.0
         count[e] += 1
-        if v > highest[e]:
-            highest[e] = v
-        if v <= rough_cap:
-            rough_n[e] += 1
-            rough_sum2[e] += v * v
+        highest[e] = max(highest[e], v)  # branch-free updates: the comparisons are
+        low = v <= rough_cap  # unpredictable from point to point
+        rough_n[e] += low
+        rough_sum2[e] += v * v if low else 0.0  # + 0.0 leaves the non-negative sum exact
     return slot, count[:m], highest[:m], rough_n[:m], rough_sum2[:m], cell_i[:m], cell_j[:m]
 
 
