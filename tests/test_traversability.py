@@ -120,7 +120,7 @@ def test_cells_steeper_than_the_profile_are_lethal(ramp_scene):
 
 
 def test_cells_without_points_are_unknown_and_slope_only_maps_keep_the_slope(ramp_scene):
-    scene, positions, surface = ramp_scene
+    _, positions, surface = ramp_scene
     profile = VehicleProfile(name="test", max_slope_deg=8.0, max_step_height=0.3,
                              ground_clearance=0.3, footprint=(2.0, 1.0))
     region = (-2, 30, -10, 10)
@@ -135,7 +135,6 @@ def test_cells_without_points_are_unknown_and_slope_only_maps_keep_the_slope(ram
     # footprint's inflation around a lethal cell reaches them
     lethal_seen = np.zeros(cost_map.shape, bool)
     lethal_seen[known] = cost_map.state[known] == LETHAL
-    gx, gy = np.meshgrid(cost_map.x_centers, cost_map.y_centers, indexing="ij")
     from scipy.ndimage import distance_transform_edt
 
     d = distance_transform_edt(~lethal_seen) * cost_map.cell_size

@@ -596,10 +596,9 @@ def grid_box_candidates(cluster, ix, iy, cell_labels, x, y, n_clusters):
     m = cluster.shape[0]
     n_slots = 0
     for k in range(m):
-        if cluster[k] >= 0:
-            if cell_labels[ix[k], iy[k]] > 0:
-                cell_labels[ix[k], iy[k]] = -1 - n_slots
-                n_slots += 1
+        if cluster[k] >= 0 and cell_labels[ix[k], iy[k]] > 0:
+            cell_labels[ix[k], iy[k]] = -1 - n_slots
+            n_slots += 1
     best = np.full((n_slots, 8), -1, np.int64)
     value = np.empty((n_slots, 8))
     for k in range(m):

@@ -34,8 +34,8 @@ from .sensors import (
     sensor_pose,
     terrain_rmse,
 )
-from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
 from .sequence import sequence_ground, synthetic_sequence
+from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
     "OBSTACLE", "OBSTACLE_SHAPES", "OUTLIER", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN",

@@ -18,8 +18,8 @@ from ..tracking import SequenceFrame
 from .scene import Obstacle, make_scene
 from .sensors import sample_lidar
 
-__all__ = ["SENSOR_HEIGHT", "SPURIOUS", "SEQUENCE_OBSTACLES", "synthetic_sequence",
-           "sequence_ground"]
+__all__ = ["SENSOR_HEIGHT", "SEQUENCE_OBSTACLES", "SPURIOUS", "sequence_ground",
+           "synthetic_sequence"]
 
 #: height of the sequence's lidar over its flat ground (m)
 SENSOR_HEIGHT = 1.8
