@@ -22,7 +22,6 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
 
 from o3d_terrain.api import fit_terrain  # noqa: E402
 from o3d_terrain.frame import as_frame  # noqa: E402
@@ -71,20 +70,21 @@ def speed(positions: np.ndarray, repeats: int) -> None:
 
 
 def kitti_detection(root: Path) -> None:
-    from test_obstacles import KITTI_GROUND, found_fraction, kitti_instances
+    from o3d_terrain.evaluation.datasets import SEMANTIC_KITTI_GROUND
+    from o3d_terrain.obstacles import instances_found, semantic_kitti_instances
 
     for name in ("000000", "000001", "000002"):
         positions, labels = kitti_frame(root, name)
         surface = fit_terrain(positions)
         point_labels, heights = segment_points(surface, positions)
-        instances = kitti_instances(labels, positions)
-        ground = np.isin(labels & 0xFFFF, KITTI_GROUND)
+        instances = semantic_kitti_instances(labels, positions)
+        ground = np.isin(labels & 0xFFFF, SEMANTIC_KITTI_GROUND)
         for method in ("grid", "dbscan"):
             t0 = time.perf_counter()
             obstacles = detect_obstacles(positions, labels=point_labels,
                                          heights_above_terrain=heights, method=method)
             seconds = time.perf_counter() - t0
-            found = found_fraction(obstacles.cluster_ids, instances, 50)
+            found = instances_found(obstacles.cluster_ids, instances, 50)
             mostly_ground = sum(1 for o in obstacles if ground[o.indices].mean() > 0.5)
             print(f"kitti {name} {method:<6}: {sum(found.values())}/{len(found)} instances "
                   f"(>= 50 points) found, {len(obstacles)} obstacles, {mostly_ground} mostly "
@@ -92,30 +92,20 @@ def kitti_detection(root: Path) -> None:
 
 
 def tracking() -> None:
-    from test_tracking import SENSOR_HEIGHT, flat_surface, majority
-
-    from o3d_terrain.tracking import synthetic_sequence, track_frames
+    from o3d_terrain.synthetic import sequence_ground, synthetic_sequence
+    from o3d_terrain.tracking import ObstacleTracker, score_tracks, track_frames
 
     frames = synthetic_sequence(frames=20, seed=0)
     for label, detect in (("exact ground", lambda f: detect_obstacles(
-            f, surface=flat_surface(-SENSOR_HEIGHT))), ("fitted terrain", None)):
-        steps = track_frames(frames, detect=detect)
-        identities: dict[int, set] = {}
-        spurious = spurious_confirmed = 0
-        for frame, step in zip(frames, steps):
-            confirmed = {t.id for t in step.tracks}
-            for obstacle in step.obstacles:
-                truth = majority(frame.truth[obstacle.indices])
-                track = step.track_of_obstacle.get(obstacle.id)
-                if truth == -3:
-                    spurious += 1
-                    spurious_confirmed += track in confirmed
-                elif truth >= 0 and track in confirmed:
-                    identities.setdefault(truth, set()).add(track)
-        switches = sum(len(v) - 1 for v in identities.values())
-        print(f"tracking ({label}, {len(frames)} frames): {len(identities)}/5 obstacles "
-              f"tracked, {switches} identity switches, {spurious} one-frame spurious "
-              f"detections, {spurious_confirmed} confirmed")
+            f, surface=sequence_ground())), ("fitted terrain", None)):
+        for merge_distance in (0.5, 0.0):
+            steps = track_frames(frames, detect=detect,
+                                 tracker=ObstacleTracker(merge_distance=merge_distance))
+            score = score_tracks(frames, steps)
+            print(f"tracking ({label}, {len(frames)} frames, merge_distance {merge_distance}): "
+                  f"{score.tracked}/{score.detected} obstacles tracked, "
+                  f"{score.identity_switches} identity switches, {score.spurious} one-frame "
+                  f"spurious detections, {score.spurious_confirmed} confirmed")
 
 
 def main() -> None:

@@ -34,7 +34,8 @@ from .frame import HEIGHTS_ABOVE_TERRAIN, LABELS, as_frame
 from .segment import TerrainLabel
 
 __all__ = ["DetectedObstacle", "ObstacleSet", "detect_obstacles", "CLUSTER_METHODS",
-           "CLUSTER_IDS", "oriented_box"]
+           "CLUSTER_IDS", "oriented_box", "instances_found", "semantic_kitti_instances",
+           "SEMANTIC_KITTI_INSTANCE_CLASSES"]
 
 CLUSTER_METHODS = ("grid", "dbscan")
 
@@ -146,54 +147,25 @@ def _box_corners(center, size, yaw_deg) -> np.ndarray:
     return np.array([c + u + v, c - u + v, c - u - v, c + u - v])
 
 
-def _length_first(w: float, h: float, angle: float) -> tuple[float, float, float]:
-    """A ``cv2.minAreaRect`` size and angle as (length, width, yaw_deg): length >= width, yaw
-    the direction of the length in (-90, 90] degrees."""
-    if h > w:
-        w, h = h, w
-        angle += 90.0
-    while angle > 90.0:
-        angle -= 180.0
-    while angle <= -90.0:
-        angle += 180.0
-    return w, h, angle
-
-
 def oriented_box(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Minimum-area rectangle of (K, 2) points: (center, (length, width), yaw_deg).
 
-    Length >= width; yaw is the direction of the length in (-90, 90] degrees. Computed on
-    coordinates relative to the first point so float32 keeps millimetres at map scale.
+    Length >= width; yaw is the direction of the length in (-90, 90] degrees (see
+    :func:`~o3d_terrain._kernels.obstacles.min_area_boxes` for ties and degenerate sets).
+    Computed in float64 on coordinates relative to the first point.
     """
-    import cv2
-
-    xy = np.asarray(xy, dtype=np.float64)
-    origin = xy[0]
-    (cx, cy), (w, h), angle = cv2.minAreaRect((xy - origin).astype(np.float32))
-    w, h, angle = _length_first(w, h, angle)
-    return origin + np.array([cx, cy]), np.array([float(w), float(h)]), float(angle)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(xy) == 0:
+        raise InputError("oriented_box: no points")
+    centers, sizes, yaws = _oriented_boxes(xy, np.array([0, len(xy)], np.int64))
+    return centers[0], sizes[0], float(yaws[0])
 
 
 def _oriented_boxes(xy: np.ndarray, starts: np.ndarray):
-    """:func:`oriented_box` of each group ``xy[starts[g]:starts[g + 1]]`` (same arithmetic):
-    (centers (K, 2), sizes (K, 2), yaws (K,)), with the coordinate shift and the float32
-    conversion done once for all groups."""
-    import cv2
-
-    counts = np.diff(starts)
-    firsts = xy[starts[:-1]]
-    relative = (xy - np.repeat(firsts, counts, axis=0)).astype(np.float32)
-    k = len(counts)
-    offsets = np.empty((k, 2))
-    sizes = np.empty((k, 2))
-    yaws = np.empty(k)
-    for g in range(k):
-        (cx, cy), (w, h), angle = cv2.minAreaRect(relative[starts[g]:starts[g + 1]])
-        w, h, angle = _length_first(w, h, angle)
-        offsets[g] = cx, cy
-        sizes[g] = w, h
-        yaws[g] = angle
-    return firsts + offsets, sizes, yaws
+    """:func:`oriented_box` of each group ``xy[starts[g]:starts[g + 1]]``: (centers (K, 2),
+    sizes (K, 2), yaws (K,))."""
+    return _k.min_area_boxes(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                             np.asarray(starts, np.int64))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -267,8 +239,10 @@ def _grid_size(ix: np.ndarray, iy: np.ndarray, cell_size: float) -> tuple[int, i
     return nx, ny
 
 
-def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int, ny: int) -> np.ndarray:
-    """Component id (0..K-1) of each point: 8-connected occupied cells."""
+def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int,
+                     ny: int) -> tuple[np.ndarray, np.ndarray]:
+    """Component id (0..K-1) of each point (8-connected occupied cells), and the (nx, ny)
+    int32 label image (component id + 1, 0 for empty cells)."""
     import cv2
 
     mask = _k.occupancy_mask(ix, iy, nx, ny)
@@ -278,7 +252,8 @@ def _grid_components(ix: np.ndarray, iy: np.ndarray, nx: int, ny: int) -> np.nda
         components, _ = ndimage.label(mask, structure=np.ones((3, 3)))
     else:
         _, components = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-    return _k.labels_at(components, ix, iy, -1)
+    components = np.ascontiguousarray(components, dtype=np.int32)
+    return _k.labels_at(components, ix, iy, -1), components
 
 
 def _dbscan_components(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
@@ -289,23 +264,18 @@ def _dbscan_components(points: np.ndarray, eps: float, min_points: int) -> np.nd
 
 
 def _hull_candidates(points: np.ndarray, cluster: np.ndarray, ix, iy, nx: int, ny: int,
-                     n_clusters: int, grid_method: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate hull points grouped by cluster: (order, starts) over point indices.
-
-    Cells are keyed by (cluster, cell), so clusters that share a cell (DBSCAN) stay apart.
+                     n_clusters: int) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate hull points grouped by cluster: (order, starts) over point indices, for
+    clusterings where clusters may share a cell (DBSCAN): cells are keyed by (cluster, cell).
     """
-    if grid_method:  # the cluster is a function of the cell
-        candidates = _k.hull_candidates_by_cell(cluster, ix, iy, ny, nx * ny,
-                                                points[:, 0], points[:, 1])
-    else:
-        inside = cluster >= 0
-        key = cluster * (nx * ny) + ix * ny + iy
-        unique, rank = np.unique(key[inside], return_inverse=True)
-        cell = np.zeros(len(points), np.int64)
-        cell[inside] = rank
-        sub = np.flatnonzero(inside)
-        best = _k.hull_candidates(cell[sub], points[sub, 0], points[sub, 1], len(unique))
-        candidates = np.unique(sub[best[best >= 0]])
+    inside = cluster >= 0
+    key = cluster * (nx * ny) + ix * ny + iy
+    unique, rank = np.unique(key[inside], return_inverse=True)
+    cell = np.zeros(len(points), np.int64)
+    cell[inside] = rank
+    sub = np.flatnonzero(inside)
+    best = _k.hull_candidates(cell[sub], points[sub, 0], points[sub, 1], len(unique))
+    candidates = np.unique(sub[best[best >= 0]])
     order, starts = _k.group_by(cluster[candidates], n_clusters)
     return candidates[order], starts
 
@@ -357,7 +327,7 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
         return ObstacleSet((), cluster_ids, method, options)
     nx, ny = _grid_size(ix, iy, float(cell_size))
     if method == "grid":
-        component = _grid_components(ix, iy, nx, ny)
+        component, cell_labels = _grid_components(ix, iy, nx, ny)
     else:
         component = _dbscan_components(points, float(eps), min(3, int(min_points)))
     n_components = int(component.max()) + 1 if len(component) else 0
@@ -367,21 +337,94 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     kept = np.flatnonzero(keep)
     new_id = np.full(max(n_components, 1), -1, np.int64)
     new_id[kept] = np.arange(len(kept))
-    point_ids = np.where(component >= 0, new_id[np.maximum(component, 0)], -1)
-    cluster_ids[members] = point_ids
-    order, starts = _k.group_by(point_ids, len(kept))
-    hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept),
-                                         method == "grid")
-    centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
-    indices_all = members[order]
+    point_ids, indices_all, starts = _k.relabel_points(component, new_id, members, cluster_ids,
+                                                       len(kept))
+    if method == "grid":  # the cluster is a function of the cell
+        hull_x, hull_y, hull_starts = _k.grid_box_candidates(
+            point_ids, ix, iy, cell_labels, points[:, 0], points[:, 1], len(kept))
+        centers, sizes, yaws = _k.min_area_boxes(hull_x, hull_y, hull_starts)
+    else:
+        hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept))
+        centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
     centroids = sums[kept] / count[kept][:, None]
-    obstacles = []
-    for new, old in enumerate(kept):
-        indices = indices_all[starts[new]:starts[new + 1]]
-        obstacles.append(DetectedObstacle(
-            id=new, indices=indices, centroid=centroids[new], box_center=centers[new],
-            box_size=sizes[new], box_yaw_deg=float(yaws[new]), height=float(h_high[old]),
-            z_min=float(z_low[old]),
-            z_max=float(z_high[old])))
-    return ObstacleSet(tuple(obstacles), cluster_ids, method, options)
+    obstacles = _obstacles_from_arrays(indices_all, starts, centroids, centers, sizes, yaws,
+                                       h_high[kept], z_low[kept], z_high[kept])
+    return ObstacleSet(obstacles, cluster_ids, method, options)
 
+
+def _obstacles_from_arrays(indices_all, starts, centroids, centers, sizes, yaws, heights,
+                           z_low, z_high) -> tuple[DetectedObstacle, ...]:
+    """The DetectedObstacle values of K obstacles given as arrays (obstacle g: indices
+    ``indices_all[starts[g]:starts[g + 1]]``, row g of the others; arrays are shared as views).
+
+    Each value's fields are written straight into its ``__dict__``, as the generated frozen
+    ``__init__`` would (it sets them one by one through ``object.__setattr__``), from Python
+    lists: 184 KITTI obstacles in 0.15 ms instead of 0.8 ms.
+    """
+    make = object.__new__
+    bounds = starts.tolist()
+    yaw_list, height_list = yaws.tolist(), heights.tolist()
+    low_list, high_list = z_low.tolist(), z_high.tolist()
+    out = []
+    for g in range(len(yaw_list)):
+        obstacle = make(DetectedObstacle)
+        obstacle.__dict__.update(
+            id=g, indices=indices_all[bounds[g]:bounds[g + 1]], centroid=centroids[g],
+            box_center=centers[g], box_size=sizes[g], box_yaw_deg=yaw_list[g],
+            height=height_list[g], z_min=low_list[g], z_max=high_list[g])
+        out.append(obstacle)
+    return tuple(out)
+
+
+
+# ---------------------------------------------------------------------------------------------
+# scoring against instance truth
+
+#: SemanticKITTI classes scored as object instances: vehicles, people, riders (and their
+#: moving variants), trunk, pole, traffic sign
+SEMANTIC_KITTI_INSTANCE_CLASSES = (10, 11, 13, 15, 16, 18, 20, 30, 31, 32, 71, 80, 81,
+                                   252, 253, 254, 255, 256, 257, 258, 259)
+
+
+def instances_found(cluster_ids: np.ndarray, instance_ids: np.ndarray,
+                    min_points: int = 50) -> dict[int, bool]:
+    """Per true instance with at least ``min_points`` points: True when at least half of its
+    points lie in one obstacle. ``cluster_ids`` (N,) obstacle id per point (-1 none),
+    ``instance_ids`` (N,) true instance per point (-1 none)."""
+    cluster_ids = np.asarray(cluster_ids)
+    instance_ids = np.asarray(instance_ids)
+    out = {}
+    for k in np.unique(instance_ids[instance_ids >= 0]):
+        members = instance_ids == k
+        if members.sum() < min_points:
+            continue
+        c = cluster_ids[members]
+        c = c[c >= 0]
+        out[int(k)] = bool(len(c)) and bool(np.bincount(c).max() >= 0.5 * members.sum())
+    return out
+
+
+def semantic_kitti_instances(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Instance id per point of :data:`SEMANTIC_KITTI_INSTANCE_CLASSES`, -1 elsewhere, from
+    SemanticKITTI labels (semantic id in the lower 16 bits, instance in the upper 16).
+
+    Trunk, pole and traffic-sign points carry instance 0 in SemanticKITTI, so for classes
+    without instance ids an instance is a 0.5 m single-linkage connected component (Open3D
+    DBSCAN with one point) of that class's points.
+    """
+    import open3d as o3d
+
+    labels = np.asarray(labels, dtype=np.uint32)
+    semantic = labels & 0xFFFF
+    out = np.full(len(labels), -1, np.int64)
+    objects = np.isin(semantic, SEMANTIC_KITTI_INSTANCE_CLASSES)
+    with_id = objects & ((labels >> 16) > 0)
+    _, out[with_id] = np.unique(labels[with_id], return_inverse=True)
+    next_id = out.max() + 1
+    for cls in np.unique(semantic[objects & ~with_id]):
+        members = np.flatnonzero(objects & ~with_id & (semantic == cls))
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions[members]))
+        parts = np.asarray(pcd.cluster_dbscan(eps=0.5, min_points=1))
+        out[members] = parts + next_id
+        next_id += parts.max() + 1
+    return out

@@ -9,6 +9,16 @@ method on the distance between predicted and measured positions (pairs farther a
 frames without one (a tentative track at its first miss), so an obstacle seen in a single
 frame never becomes a confirmed track.
 
+One object can come out of the clustering as several obstacles: a surface seen at grazing
+incidence (the side of a car ahead) is sampled more sparsely along it than the clustering cell
+bridges, so it breaks into pieces that persist from frame to frame. An obstacle left without a
+track by the assignment whose box lies within ``merge_distance`` metres of the box of an
+obstacle a track took this frame (or of another such fragment) is a *fragment* of that
+object: it joins that track (``Track.fragments``) instead of starting one; obstacles without
+a track that are that close to each other start one track, measured on the one with the most
+points. A track's Kalman measurement is the centroid of the obstacle the assignment gave it
+(fragments come and go with the sampling, so they do not move the centroid).
+
 With poses (``world_from_sensor`` 4x4 per frame) the tracks live in the world frame, so the
 vehicle's own motion does not look like obstacle motion; without poses they live in the
 sensor frame and association is by nearest neighbour there.
@@ -27,7 +37,7 @@ from .errors import InputError
 from .frame import Frame, as_frame
 
 __all__ = ["Track", "ObstacleTracker", "SequenceFrame", "SequenceStep", "track_frames",
-           "run_sequence", "read_poses", "synthetic_sequence", "write_sequence"]
+           "run_sequence", "read_poses", "write_sequence", "TrackScore", "score_tracks"]
 
 
 @dataclass
@@ -42,6 +52,7 @@ class Track:
     misses: int = 0
     confirmed: bool = False
     obstacle: Any = None  # the obstacle associated in the latest frame (None on a miss)
+    fragments: list = field(default_factory=list)  # the latest frame's fragments (see module)
 
     @property
     def position(self) -> np.ndarray:
@@ -70,16 +81,20 @@ class ObstacleTracker:
     frames a confirmed track survives without an association. gate: largest distance (m)
     between a predicted track and an obstacle that may be associated. acceleration_noise:
     standard deviation of the unmodelled acceleration (m/s²). measurement_noise: standard
-    deviation of a centroid measurement (m).
+    deviation of a centroid measurement (m). merge_distance: largest gap (m) between the boxes
+    of an obstacle without a track and of an obstacle a track took for the first to join
+    that track as a fragment; 0 = every obstacle without a track starts one.
     """
 
     def __init__(self, *, confirm_hits: int = 3, max_misses: int = 2, gate: float = 2.0,
-                 acceleration_noise: float = 2.0, measurement_noise: float = 0.3) -> None:
+                 acceleration_noise: float = 2.0, measurement_noise: float = 0.3,
+                 merge_distance: float = 0.5) -> None:
         problems = [p for p in (
             _check("confirm_hits", confirm_hits, integer=True),
             _check("max_misses", max_misses, integer=True, allow_zero=True),
             _check("gate", gate), _check("acceleration_noise", acceleration_noise),
-            _check("measurement_noise", measurement_noise)) if p]
+            _check("measurement_noise", measurement_noise),
+            _check("merge_distance", merge_distance, allow_zero=True)) if p]
         if problems:
             raise InputError("ObstacleTracker: " + "; ".join(problems))
         self.confirm_hits = int(confirm_hits)
@@ -87,6 +102,7 @@ class ObstacleTracker:
         self.gate = float(gate)
         self.acceleration_noise = float(acceleration_noise)
         self.measurement_noise = float(measurement_noise)
+        self.merge_distance = float(merge_distance)
         self.tracks: list[Track] = []
         self._next_id = 0
         self._time: float | None = None
@@ -154,6 +170,7 @@ class ObstacleTracker:
         for track in self.tracks:
             self._predict(track, float(time))
             track.obstacle = None
+            track.fragments = []
         pairs: list[tuple[int, int]] = []
         if self.tracks and len(measured):
             from scipy.optimize import linear_sum_assignment
@@ -173,6 +190,11 @@ class ObstacleTracker:
             track.obstacle = obstacles[c]
             if track.hits >= self.confirm_hits:
                 track.confirmed = True
+        owner_of = self._fragments(obstacles, pairs, centroids, pose)
+        track_of = {c: self.tracks[r] for r, c in pairs}
+        for c in sorted(owner_of):
+            if owner_of[c] in track_of:
+                track_of[owner_of[c]].fragments.append(obstacles[c])
         survivors = []
         for index, track in enumerate(self.tracks):
             if index not in matched_tracks:
@@ -180,14 +202,109 @@ class ObstacleTracker:
                 if not track.confirmed or track.misses > self.max_misses:
                     continue
             survivors.append(track)
+        new_tracks = {}
         for c in range(len(measured)):
-            if c not in matched_obstacles:
-                survivors.append(self._new_track(measured[c], float(time), obstacles[c]))
+            if c not in matched_obstacles and c not in owner_of:
+                new_tracks[c] = self._new_track(measured[c], float(time), obstacles[c])
+                survivors.append(new_tracks[c])
+        for c in sorted(owner_of):
+            if owner_of[c] in new_tracks:
+                new_tracks[owner_of[c]].fragments.append(obstacles[c])
         self.tracks = survivors
         return self.confirmed()
 
     def confirmed(self) -> list[Track]:
         return [t for t in self.tracks if t.confirmed]
+
+    def _fragments(self, obstacles: list, pairs: list[tuple[int, int]], centroids: np.ndarray,
+                   pose: np.ndarray | None) -> dict[int, int]:
+        """Fragments among the obstacles the assignment left without a track: obstacle index
+        -> index of the obstacle whose object it belongs to (the owner). An obstacle within
+        ``merge_distance`` of one a track took (boxes, chained through other fragments; the
+        nearest wins) belongs to that one; the rest are grouped the same way among themselves
+        and each group's owner is its obstacle with the most points."""
+        taken = [c for _, c in pairs]
+        free = [c for c in range(len(obstacles)) if c not in set(taken)]
+        if self.merge_distance <= 0 or not free:
+            return {}
+        boxes = {c: _world_box(obstacles[c], centroids[c], pose) for c in taken + free}
+        owner_of: dict[int, int] = {}
+
+        def spread(frontier: list[int], free: list[int]) -> list[int]:
+            while frontier and free:
+                gap = np.array([[_box_gap(boxes[f], boxes[a]) for a in frontier]
+                                for f in free])
+                near = gap.min(axis=1) <= self.merge_distance
+                joined = [f for f, ok in zip(free, near) if ok]
+                for f, row in zip(free, gap):
+                    if row.min() <= self.merge_distance:
+                        a = frontier[int(row.argmin())]
+                        owner_of[f] = owner_of.get(a, a)
+                free = [f for f in free if f not in owner_of]
+                frontier = joined
+            return free
+
+        free = spread(taken, free)
+        while len(free) > 1:  # groups among the rest, each led by its largest obstacle
+            lead = max(free, key=lambda c: (_point_count(obstacles[c]), -c))
+            free = [f for f in free if f != lead]
+            group_free = spread([lead], free)
+            free = [f for f in free if f in group_free]
+        return owner_of
+
+def _point_count(obstacle: Any) -> int:
+    indices = getattr(obstacle, "indices", None)
+    return 0 if indices is None else len(indices)
+
+
+def _world_box(obstacle: Any, centroid: np.ndarray, pose: np.ndarray | None) -> np.ndarray:
+    """An obstacle's box corners (4, 2) in the tracking frame; its centroid (repeated) when it
+    has no box."""
+    if hasattr(obstacle, "corners"):
+        corners = np.asarray(obstacle.corners(), dtype=np.float64)
+        if pose is not None:
+            z = np.asarray(obstacle.centroid, dtype=np.float64)[2]
+            points = np.column_stack([corners, np.full(len(corners), z)])
+            corners = (points @ pose[:3, :3].T + pose[:3, 3])[:, :2]
+        return corners
+    return np.repeat(centroid[None, :2], 4, axis=0)
+
+
+def _segment_gap(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    d = b - a
+    length2 = float(d @ d)
+    t = 0.0 if length2 == 0 else min(max(float((p - a) @ d) / length2, 0.0), 1.0)
+    return float(np.hypot(*(p - a - t * d)))
+
+
+def _inside(p: np.ndarray, polygon: np.ndarray) -> bool:
+    """p inside or on a convex polygon (either orientation); False for a degenerate one."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    area = float(np.sum(polygon[:, 0] * np.roll(polygon[:, 1], -1)
+                        - np.roll(polygon[:, 0], -1) * polygon[:, 1]))
+    if abs(area) < 1e-12:
+        return False
+    cross = edges[:, 0] * (p[1] - polygon[:, 1]) - edges[:, 1] * (p[0] - polygon[:, 0])
+    return bool(np.all(cross * np.sign(area) >= 0))
+
+
+def _crosses(a0, a1, b0, b1) -> bool:
+    def side(p, q, r):
+        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+
+    return (side(a0, a1, b0) * side(a0, a1, b1) < 0) and (side(b0, b1, a0) * side(b0, b1, a1) < 0)
+
+
+def _box_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (m) between two convex quadrilaterals (4, 2); 0 when they overlap."""
+    if any(_inside(p, b) for p in a) or any(_inside(p, a) for p in b):
+        return 0.0
+    for i in range(4):
+        for j in range(4):
+            if _crosses(a[i], a[(i + 1) % 4], b[j], b[(j + 1) % 4]):
+                return 0.0
+    return min(min(_segment_gap(p, b[j], b[(j + 1) % 4]) for p in a for j in range(4)),
+               min(_segment_gap(p, a[j], a[(j + 1) % 4]) for p in b for j in range(4)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -216,6 +333,7 @@ class SequenceStep:
     obstacles: Any  # the frame's ObstacleSet
     tracks: list[Track]  # the confirmed tracks after this frame (copies of id and state)
     track_of_obstacle: dict[int, int] = field(default_factory=dict)  # obstacle id -> track id
+    # (fragments included)
 
 
 def _default_detect(frame: Frame):
@@ -238,10 +356,11 @@ def track_frames(frames: Iterable[SequenceFrame], *, tracker: ObstacleTracker | 
         confirmed = tracker.update(obstacles, time=frame.time, world_from_sensor=pose)
         mapping = {}
         for track in tracker.tracks:
-            if track.obstacle is not None:
-                mapping[int(track.obstacle.id)] = track.id
+            for obstacle in ([track.obstacle] if track.obstacle is not None else []) \
+                    + track.fragments:
+                mapping[int(obstacle.id)] = track.id
         snapshot = [Track(t.id, t.state.copy(), t.covariance.copy(), t.time, t.hits, t.misses,
-                          t.confirmed, t.obstacle) for t in confirmed]
+                          t.confirmed, t.obstacle, list(t.fragments)) for t in confirmed]
         steps.append(SequenceStep(frame.name, frame.time, obstacles, snapshot, mapping))
     return steps
 
@@ -312,47 +431,6 @@ def run_sequence(folder: str | Path, *, tracker: ObstacleTracker | None = None,
     return track_frames(frames(), tracker=tracker, detect=detect)
 
 
-# ---------------------------------------------------------------------------------------------
-# a synthetic sequence (a moving sensor past static and moving obstacles)
-
-
-def synthetic_sequence(*, frames: int = 12, frame_interval: float = 0.1, speed: float = 3.0,
-                       spurious: bool = True, seed: int = 0, beams: int = 32,
-                       azimuth_steps: int = 900) -> list[SequenceFrame]:
-    """A lidar on a vehicle driving along +x at ``speed`` m/s over flat ground, past static
-    obstacles (a pole, a car, a rock) and moving ones (a pedestrian crossing, an oncoming
-    car). With ``spurious`` each frame also holds one cluster of 30 points floating 0.5-1.5 m
-    above the ground at a random place (dust, a reflection), never at the same place twice.
-    Truth per point: obstacle index, -1 terrain, -3 spurious."""
-    from .synthetic import Obstacle, make_scene, sample_lidar
-
-    rng = np.random.default_rng(seed)
-    obstacles = [
-        Obstacle("pole", (9.0, 4.0), (0.25, 0.25), 3.0),
-        Obstacle("car", (16.0, -4.5), (4.5, 1.8), 1.5, yaw_deg=5.0),
-        Obstacle("rock", (12.0, 3.5), (1.4, 1.0), 0.8, yaw_deg=30.0),
-        Obstacle("pedestrian", (11.0, -6.0), (0.5, 0.5), 1.75, velocity=(0.0, 1.4)),
-        Obstacle("car", (26.0, 5.0), (4.5, 1.8), 1.5, velocity=(-4.0, 0.0)),
-    ]
-    base = make_scene("flat").with_obstacles(obstacles)
-    out = []
-    for k in range(int(frames)):
-        t = k * frame_interval
-        scene = base.at_time(t)
-        cloud = sample_lidar(scene, sensor_xy=(speed * t, 0.0), beams=beams,
-                             azimuth_steps=azimuth_steps, seed=seed + k)
-        positions = cloud.positions
-        truth = cloud.obstacle_id.astype(np.int64)
-        if spurious:
-            world_centre = np.array([speed * t + rng.uniform(5, 25), rng.uniform(-12, 12),
-                                     rng.uniform(0.5, 1.5)])
-            blob = world_centre + rng.normal(0, 0.15, (30, 3))
-            positions = np.concatenate([positions, cloud.to_sensor(blob)])
-            truth = np.concatenate([truth, np.full(30, -3)])
-        out.append(SequenceFrame(positions, t, cloud.world_from_sensor, truth, f"{k:06d}"))
-    return out
-
-
 def write_sequence(frames: Sequence[SequenceFrame], folder: str | Path) -> list[Path]:
     """Write frames as ``NNNNNN.ply`` (with a ``truth`` attribute when known) and ``poses.txt``."""
     from .frame import cloud_from_numpy
@@ -371,3 +449,66 @@ def write_sequence(frames: Sequence[SequenceFrame], folder: str | Path) -> list[
         np.savetxt(folder / "poses.txt", np.array(rows))
         written.append(folder / "poses.txt")
     return written
+
+
+# ---------------------------------------------------------------------------------------------
+# scoring against truth
+
+
+@dataclass(frozen=True)
+class TrackScore:
+    """How tracks followed a sequence with per-point truth (:func:`score_tracks`).
+
+    ``tracks_of_obstacle``: true obstacle id -> the confirmed track ids its detections carried.
+    ``identity_switches``: sum over true obstacles of (number of those track ids - 1): a track
+    changing, or a second confirmed track on a piece of the same obstacle, each count.
+    ``spurious``: detections of spurious clusters; ``spurious_confirmed``: those carried by a
+    confirmed track. ``detected``: true obstacles detected at least once.
+    """
+
+    detected: int
+    tracks_of_obstacle: dict
+    identity_switches: int
+    spurious: int
+    spurious_confirmed: int
+
+    @property
+    def tracked(self) -> int:
+        """True obstacles carried by a confirmed track in at least one frame."""
+        return len(self.tracks_of_obstacle)
+
+
+def _majority(values: np.ndarray) -> int:
+    keys, counts = np.unique(values, return_counts=True)
+    return int(keys[counts.argmax()])
+
+
+def score_tracks(frames: Sequence[SequenceFrame], steps: Sequence[SequenceStep], *,
+                 spurious_truth: int = -3) -> TrackScore:
+    """Score :func:`track_frames` output against the frames' per-point ``truth``.
+
+    Each detected obstacle's truth is the most common truth value of its points (obstacle ids
+    >= 0; ``spurious_truth`` marks a spurious cluster; other negative values are terrain).
+    """
+    if len(frames) != len(steps):
+        raise InputError(f"score_tracks: {len(frames)} frames but {len(steps)} steps")
+    detected: set[int] = set()
+    identities: dict[int, set[int]] = {}
+    spurious = spurious_confirmed = 0
+    for k, (frame, step) in enumerate(zip(frames, steps)):
+        if frame.truth is None:
+            raise InputError(f"score_tracks: frame {k} ({frame.name!r}) has no truth")
+        confirmed = {t.id for t in step.tracks}
+        for obstacle in step.obstacles:
+            truth = _majority(np.asarray(frame.truth)[obstacle.indices])
+            track = step.track_of_obstacle.get(int(obstacle.id))
+            if truth == spurious_truth:
+                spurious += 1
+                spurious_confirmed += track in confirmed
+            elif truth >= 0:
+                detected.add(truth)
+                if track in confirmed:
+                    identities.setdefault(truth, set()).add(track)
+    switches = sum(len(v) - 1 for v in identities.values())
+    return TrackScore(len(detected), {k: tuple(sorted(v)) for k, v in sorted(identities.items())},
+                      switches, spurious, spurious_confirmed)

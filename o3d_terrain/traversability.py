@@ -17,7 +17,10 @@ at most max_step_height, the belly clears at most ground_clearance) and ρmax:
     LETHAL            if θ > θmax or s > s* or occupied
     cost = (wθ (θ/θmax)² + ws (s/s*)² + wρ min(ρ/ρmax, 1)²) / (wθ + ws + wρ)   otherwise
 
-Cells with no point are UNKNOWN: their cost is max(slope term, ``unknown_cost``). Lethal cells
+Cells with no point are UNKNOWN: they cost ``unknown_cost``, have no slope, step or roughness
+(NaN) and are lethal only when occupied; no work is spent on them beyond that fill. A
+slope-only map (no cloud) is the exception: every cell is UNKNOWN with the slope of the surface,
+cost max(slope term, ``unknown_cost``), and LETHAL over θmax. Lethal cells
 are inflated by the footprint: a cell whose centre is within the inscribed radius (half the
 width) of a lethal cell is INSCRIBED (cost 1: the vehicle's centre cannot be there); out to the
 circumscribed radius the cost is at least 0.99 exp(-(d - r_in) / inflation_scale). Costs are in
@@ -394,6 +397,23 @@ def _check_positive(name: str, value, *, allow_zero: bool = False, high: float |
     return None
 
 
+def _tall_obstacles(obstacles, n: int, lethal_step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per point the index of its obstacle in ``obstacles`` (-1 none), and per obstacle
+    whether it is taller than the lethal step. An ObstacleSet of this cloud already carries
+    the first (``cluster_ids``: obstacle g is ``obstacles[g]``); other sequences of obstacles
+    are mapped through their ``indices``."""
+    if obstacles is None:
+        return np.full(n, -1, np.int32), np.zeros(0, bool)
+    tall = np.array([o.height > lethal_step for o in obstacles], bool)
+    ids = getattr(obstacles, "cluster_ids", None)
+    if ids is not None and len(ids) == n:
+        return np.ascontiguousarray(ids, dtype=np.int32), tall
+    point_obstacle = np.full(n, -1, np.int32)
+    for g, obstacle in enumerate(obstacles):
+        point_obstacle[np.asarray(obstacle.indices, np.int64)] = g
+    return point_obstacle, tall
+
+
 def traversability_cost(surface, cloud: Any = None, *,
                         vehicle: str | Path | VehicleProfile = "offroad_suv",
                         cell_size: float = 0.25,
@@ -408,13 +428,15 @@ def traversability_cost(surface, cloud: Any = None, *,
 
     surface: a TerrainSurface (its analytic gradient gives the slope). cloud: the points
         (anything :func:`~o3d_terrain.frame.as_frame` accepts) for step, roughness and
-        occupancy; None = slope only (every cell UNKNOWN). vehicle: a built-in profile name, a
+        occupancy (cells without a point are UNKNOWN at ``unknown_cost``); None = slope only
+        (every cell UNKNOWN, with the slope term and slope lethality). vehicle: a built-in profile name, a
         YAML path or a :class:`VehicleProfile`. cell_size: cell side (m). region: (x_min, x_max,
         y_min, y_max); None = the surface's region. labels, heights_above_terrain: per-point
         arrays overriding the cloud's attributes (BELOW_TERRAIN and UNKNOWN points are left
         out). obstacles: an ObstacleSet (or a sequence of obstacles) whose cells, and boxes
         with ``fill_obstacle_boxes``, are occupied when taller than the lethal step.
-        unknown_cost: the least cost of a cell with no point, in [0, 1]. weights: (slope, step,
+        unknown_cost: the cost of a cell with no point (the least, on a slope-only map), in
+        [0, 1]. weights: (slope, step,
         roughness) weights, >= 0 with a positive sum. inflation_scale: decay length (m) of the
         cost beyond the inscribed radius.
     """
@@ -452,9 +474,9 @@ def traversability_cost(surface, cloud: Any = None, *,
     xc = x_min + (np.arange(nx) + 0.5) * cell_size
     yc = y_min + (np.arange(ny) + 0.5) * cell_size
 
-    # step and roughness from the points, occupancy from the obstacles
-    count = rn = np.zeros((nx, ny), np.int32)
-    highest = rs2 = np.zeros((nx, ny))
+    # step and roughness from the points (in the cells holding points), occupancy from the
+    # obstacles
+    slot = None
     occupied = np.zeros((nx, ny), bool)
     lethal_step = profile.lethal_step
     if cloud is not None:
@@ -464,34 +486,42 @@ def traversability_cost(surface, cloud: Any = None, *,
         if len(frame):
             heights, point_labels = resolve_heights_and_labels(
                 frame, surface, labels, heights_above_terrain)
-            positions = frame.positions
-            use = (point_labels != TerrainLabel.BELOW_TERRAIN) \
-                & (point_labels != TerrainLabel.UNKNOWN) & (heights <= profile.vehicle_height)
-            ix, iy = _k.bin_points(np.ascontiguousarray(positions[:, 0]),
-                                   np.ascontiguousarray(positions[:, 1]),
-                                   x_min, y_min, cell_size, nx, ny)
-            count, highest, rn, rs2 = _k.cell_moments(
-                ix, iy, np.ascontiguousarray(heights), use, nx, ny, lethal_step)
-            if obstacles is not None:
-                tall = [o for o in obstacles if o.height > lethal_step]
-                if tall:
-                    _k.mark_points(ix, iy, np.concatenate(
-                        [np.asarray(o.indices, np.int64) for o in tall]), occupied)
-                    if fill_obstacle_boxes:
-                        _k.fill_boxes(np.array([o.box_center for o in tall], np.float64),
-                                      np.array([o.box_size for o in tall], np.float64),
-                                      np.array([o.box_yaw_deg for o in tall], np.float64),
-                                      float(x_min), float(y_min), float(cell_size), occupied)
+            point_obstacle, tall = _tall_obstacles(obstacles, len(frame), lethal_step)
+            slot, count, highest, rn, rs2, cell_i, cell_j = _k.observed_cells(
+                frame.positions, np.ascontiguousarray(point_labels),
+                np.ascontiguousarray(heights, dtype=np.float64), point_obstacle, tall,
+                float(x_min), float(y_min), float(cell_size), nx, ny,
+                int(TerrainLabel.BELOW_TERRAIN), int(TerrainLabel.UNKNOWN),
+                profile.vehicle_height, lethal_step, occupied)
+            if fill_obstacle_boxes and tall.any():
+                boxes = [o for o, is_tall in zip(obstacles, tall) if is_tall]
+                _k.fill_boxes(np.array([o.box_center for o in boxes], np.float64),
+                              np.array([o.box_size for o in boxes], np.float64),
+                              np.array([o.box_yaw_deg for o in boxes], np.float64),
+                              float(x_min), float(y_min), float(cell_size), occupied)
 
-    # the cost formula, with the slope from the surface's analytic derivatives
+    # the cost formula, with the slope from the surface's analytic derivatives: at the cells
+    # holding points (the others are UNKNOWN), or everywhere for a slope-only map
     x0, y0, _ = surface.origin
-    slope_rad = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
-                                      surface.degree, surface.control_points, surface.weights,
-                                      1e-9)
-    np.arctan(slope_rad, out=slope_rad)  # vectorised, unlike a per-cell atan in a kernel
+    slope_only = cloud is None
+    if slot is None:
+        slot = np.full((nx, ny), -1, np.int32)
+        count = rn = cell_i = cell_j = np.zeros(0, np.int32)
+        highest = rs2 = np.zeros(0)
+    if slope_only:
+        slope_grid = _k.gradient_norm_grid(xc - x0, yc - y0, surface.knots_x, surface.knots_y,
+                                           surface.degree, surface.control_points,
+                                           surface.weights, 1e-9)
+        np.arctan(slope_grid, out=slope_grid)  # vectorised, unlike a per-cell atan in a kernel
+    else:
+        slope_grid = np.zeros((1, 1))
+    entry_slope = _k.slope_at_cells(xc - x0, yc - y0, cell_i, cell_j, surface.knots_x,
+                                    surface.knots_y, surface.degree, surface.control_points,
+                                    surface.weights, 1e-9)
     slope, step, rough, cost, lethal, state = _k.cost_cells(
-        slope_rad, count, highest, rn, rs2, occupied, profile.max_slope_deg, lethal_step,
-        profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE, UNKNOWN)
+        slot, entry_slope, count, highest, rn, rs2, occupied, profile.max_slope_deg,
+        lethal_step, profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE,
+        UNKNOWN, slope_only, slope_grid)
 
     # inflation by the footprint
     if lethal.any():

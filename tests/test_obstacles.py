@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from o3d_terrain.errors import ConfigError, InputError
+from o3d_terrain.evaluation.datasets import SEMANTIC_KITTI_GROUND
 from o3d_terrain.frame import as_frame
-from o3d_terrain.obstacles import detect_obstacles, oriented_box
+from o3d_terrain.obstacles import (_oriented_boxes, detect_obstacles, instances_found,
+                                   oriented_box, semantic_kitti_instances)
 from o3d_terrain.segment import TerrainLabel, segment_points
 from o3d_terrain.spline import TerrainSurface, clamped_uniform_knots
 from o3d_terrain.stages import ObstacleDetector
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_lidar
-
-KITTI_OBJECTS = [10, 11, 13, 15, 16, 18, 20, 30, 31, 32, 71, 80, 81] + list(range(252, 260))
-KITTI_GROUND = [40, 44, 48, 49, 60, 72]
 
 
 def flat_surface(z=0.0, half=100.0) -> TerrainSurface:
@@ -32,19 +32,6 @@ def flat_scene_cloud():
     return scene, cloud
 
 
-def found_fraction(cluster_ids, truth_ids, min_points):
-    """Per true obstacle with enough points: True when half its points are in one cluster."""
-    out = {}
-    for k in np.unique(truth_ids[truth_ids >= 0]):
-        members = truth_ids == k
-        if members.sum() < min_points:
-            continue
-        c = cluster_ids[members]
-        c = c[c >= 0]
-        out[int(k)] = bool(len(c)) and np.bincount(c).max() >= 0.5 * members.sum()
-    return out
-
-
 def test_finds_every_obstacle_of_a_flat_scene(flat_scene_cloud):
     scene, cloud = flat_scene_cloud
     positions = cloud.world_positions
@@ -53,7 +40,7 @@ def test_finds_every_obstacle_of_a_flat_scene(flat_scene_cloud):
     for method in ("grid", "dbscan"):
         obstacles = detect_obstacles(positions, labels=labels, heights_above_terrain=heights,
                                      method=method)
-        found = found_fraction(obstacles.cluster_ids, cloud.obstacle_id, 50)
+        found = instances_found(obstacles.cluster_ids, cloud.obstacle_id, 50)
         assert found and all(found.values()), (method, found)
         for obstacle in obstacles:
             # no obstacle is made of terrain points
@@ -64,6 +51,12 @@ def test_finds_every_obstacle_of_a_flat_scene(flat_scene_cloud):
             assert obstacle.height == pytest.approx(heights[obstacle.indices].max())
             assert obstacle.z_min == points[:, 2].min() and obstacle.z_max == points[:, 2].max()
             assert obstacle.point_count == len(obstacle.indices) >= 5
+            # a complete, frozen value (built without the generated __init__)
+            copy = dataclasses.replace(obstacle)
+            assert all(np.array_equal(getattr(copy, f.name), getattr(obstacle, f.name))
+                       for f in dataclasses.fields(obstacle))
+            with pytest.raises(dataclasses.FrozenInstanceError):
+                obstacle.height = 0.0
             np.testing.assert_array_equal(np.flatnonzero(obstacles.cluster_ids == obstacle.id),
                                           np.sort(obstacle.indices))
             # the box holds the points (to within the hull approximation on cells)
@@ -98,6 +91,95 @@ def test_oriented_box_of_a_rotated_rectangle(rng):
     np.testing.assert_allclose(center, [1000.0, -2000.0], atol=0.02)
     np.testing.assert_allclose(size, [length, width], atol=0.02)
     assert angle == pytest.approx(yaw, abs=0.5)
+
+
+def opencv_box(xy):
+    """cv2.minAreaRect on float32 coordinates relative to the first point, as
+    (center, (length, width), yaw in (-90, 90]): the box the clustering used before."""
+    import cv2
+
+    (cx, cy), (w, h), angle = cv2.minAreaRect((xy - xy[0]).astype(np.float32))
+    if h > w:
+        w, h, angle = h, w, angle + 90.0
+    angle = (angle + 90.0) % 180.0 - 90.0
+    if angle == -90.0:
+        angle = 90.0
+    return xy[0] + [cx, cy], np.array([w, h]), angle
+
+
+def naive_min_area(xy):
+    """Least area over boxes flush with the direction of every pair of points (float64)."""
+    best = np.inf
+    for i in range(len(xy)):
+        for j in range(len(xy)):
+            d = xy[j] - xy[i]
+            if i == j or not d.any():
+                continue
+            u = d / np.hypot(*d)
+            a, b = xy @ u, xy @ [-u[1], u[0]]
+            best = min(best, np.ptp(a) * np.ptp(b))
+    return best
+
+
+def box_holds(xy, center, size, yaw, tol):
+    a = np.radians(yaw)
+    d = xy - center
+    u = d @ [np.cos(a), np.sin(a)]
+    v = d @ [-np.sin(a), np.cos(a)]
+    return np.all(np.abs(u) <= size[0] / 2 + tol) and np.all(np.abs(v) <= size[1] / 2 + tol)
+
+
+def test_boxes_are_minimum_area_rectangles_as_opencv(rng):
+    """The kernel's boxes against cv2.minAreaRect and a brute-force minimum on random sets:
+    the least area (exact in float64), holding every point, and OpenCV's box (to float32
+    precision) except where another edge ties for the least area (OpenCV then picks by
+    rounding; the kernel takes the smallest perimeter)."""
+    groups = []
+    for g in range(600):
+        n = int(rng.integers(3, 40))
+        kind = g % 4
+        if kind == 0:
+            xy = rng.normal(0, rng.uniform(0.1, 3), (n, 2)) * [1, rng.uniform(0.1, 1)]
+        elif kind == 1:
+            xy = rng.uniform(-2, 2, (n, 2))
+        elif kind == 2:  # a rotated rectangle's outline and inside
+            u, v = rng.uniform(-2, 2, n), rng.uniform(-0.6, 0.6, n)
+            xy = np.column_stack([u, v])
+        else:
+            xy = rng.uniform(-1, 1, (3, 2))  # triangles: all three edges tie when acute
+        a = rng.uniform(0, np.pi)
+        rotation = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        groups.append(xy @ rotation.T + rng.uniform(-500, 500, 2))
+    xy = np.concatenate(groups)
+    starts = np.cumsum([0] + [len(g) for g in groups])
+    centers, sizes, yaws = _oriented_boxes(xy, starts)
+    agree = 0
+    for g, points in enumerate(groups):
+        area = sizes[g].prod()
+        assert area == pytest.approx(naive_min_area(points - points[0]), rel=1e-9, abs=1e-12)
+        assert box_holds(points, centers[g], sizes[g], yaws[g], 1e-9)
+        assert sizes[g][0] >= sizes[g][1] and -90 < yaws[g] <= 90
+        center, size, yaw = opencv_box(points)
+        assert area <= size.prod() * (1 + 1e-5)  # never larger than OpenCV's
+        same = (np.allclose(center, centers[g], atol=1e-4) and np.allclose(size, sizes[g],
+                atol=1e-4) and abs((yaw - yaws[g] + 90) % 180 - 90) < 0.01)
+        agree += same
+        if not same:  # a tie: OpenCV's box is another least-area box
+            assert size.prod() == pytest.approx(area, rel=1e-5)
+    assert agree >= 0.9 * len(groups)
+
+
+def test_degenerate_boxes():
+    center, size, yaw = oriented_box(np.array([[3.0, 4.0]] * 3))
+    np.testing.assert_array_equal(center, [3.0, 4.0])
+    assert tuple(size) == (0.0, 0.0) and yaw == 90.0  # as cv2.minAreaRect
+    line = np.array([[0.0, 0.0], [1.0, 1.0], [3.0, 3.0], [2.0, 2.0]]) + 100.0
+    center, size, yaw = oriented_box(line)
+    np.testing.assert_allclose(center, [101.5, 101.5])
+    np.testing.assert_allclose(size, [3 * np.sqrt(2), 0.0], atol=1e-12)
+    assert yaw == pytest.approx(45.0)
+    with pytest.raises(InputError, match="no points"):
+        oriented_box(np.zeros((0, 2)))
 
 
 def test_filters_small_and_low_clusters():
@@ -153,27 +235,6 @@ def test_stage_writes_obstacles_and_json(flat_scene_cloud, tmp_path):
     assert len(first["box"]["corners"]) == 4
 
 
-def kitti_instances(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Instance id per point of the object classes, -1 elsewhere. Classes without instance
-    ids in SemanticKITTI (trunk, pole, traffic sign: instance 0) are split into instances by
-    0.5 m single-linkage connectivity of that class's points."""
-    import open3d as o3d
-
-    semantic = labels & 0xFFFF
-    out = np.full(len(labels), -1, np.int64)
-    objects = np.isin(semantic, KITTI_OBJECTS)
-    with_id = objects & ((labels >> 16) > 0)
-    _, out[with_id] = np.unique(labels[with_id], return_inverse=True)
-    next_id = out.max() + 1
-    for cls in np.unique(semantic[objects & ~with_id]):
-        members = np.flatnonzero(objects & ~with_id & (semantic == cls))
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions[members]))
-        parts = np.asarray(pcd.cluster_dbscan(eps=0.5, min_points=1))
-        out[members] = parts + next_id
-        next_id += parts.max() + 1
-    return out
-
-
 @pytest.mark.realdata
 @pytest.mark.parametrize("frame_name", ["000000", "000001", "000002"])
 def test_semantic_kitti_instances_are_found(shared_data, frame_name):
@@ -186,10 +247,10 @@ def test_semantic_kitti_instances_are_found(shared_data, frame_name):
     surface = fit_terrain(positions)
     point_labels, heights = segment_points(surface, positions)
     obstacles = detect_obstacles(positions, labels=point_labels, heights_above_terrain=heights)
-    found = found_fraction(obstacles.cluster_ids, kitti_instances(labels, positions), 50)
+    found = instances_found(obstacles.cluster_ids, semantic_kitti_instances(labels, positions), 50)
     assert len(found) >= 10
     assert sum(found.values()) >= 0.95 * len(found), found
-    ground = np.isin(labels & 0xFFFF, KITTI_GROUND)
+    ground = np.isin(labels & 0xFFFF, SEMANTIC_KITTI_GROUND)
     mostly_ground = sum(1 for o in obstacles if ground[o.indices].mean() > 0.5)
     assert mostly_ground <= 3
     assert np.all(point_labels[obstacles.cluster_ids >= 0] == TerrainLabel.OBSTACLE)

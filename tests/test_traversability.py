@@ -110,12 +110,39 @@ def test_cells_steeper_than_the_profile_are_lethal(ramp_scene):
         flat[1:] &= flat[:-1]
         flat[:-1] &= flat[1:]
     flat &= cost_map.known
+    steep &= cost_map.known  # cells without a point are UNKNOWN, whatever the surface's slope
     assert steep.sum() > 500 and flat.sum() > 500
     assert np.all(cost_map.state[steep] == LETHAL)
     assert np.all(cost_map.lethal[steep])
     assert not cost_map.lethal[flat].any()
     assert cost_map.cost[flat].max() < cost_map.cost[steep].min()
     np.testing.assert_allclose(cost_map.slope_deg[steep], true_slope[steep], atol=2.0)
+
+
+def test_cells_without_points_are_unknown_and_slope_only_maps_keep_the_slope(ramp_scene):
+    _, positions, surface = ramp_scene
+    profile = VehicleProfile(name="test", max_slope_deg=8.0, max_step_height=0.3,
+                             ground_clearance=0.3, footprint=(2.0, 1.0))
+    region = (-2, 30, -10, 10)
+    cost_map = traversability_cost(surface, positions, vehicle=profile, region=region)
+    slope_only = traversability_cost(surface, None, vehicle=profile, region=region)
+    known = cost_map.known
+    assert known.any() and (~known).any()
+    # the slope where there are points is the surface's, as in the slope-only map ...
+    np.testing.assert_array_equal(cost_map.slope_deg[known], slope_only.slope_deg[known])
+    assert np.all(slope_only.state[slope_only.slope_deg > profile.max_slope_deg] == LETHAL)
+    # ... and cells without a point are UNKNOWN at the unknown cost, except where the
+    # footprint's inflation around a lethal cell reaches them
+    lethal_seen = np.zeros(cost_map.shape, bool)
+    lethal_seen[known] = cost_map.state[known] == LETHAL
+    from scipy.ndimage import distance_transform_edt
+
+    d = distance_transform_edt(~lethal_seen) * cost_map.cell_size
+    far = ~known & (d > profile.circumscribed_radius + cost_map.cell_size)
+    assert far.sum() > 100
+    assert np.all(cost_map.state[far] == UNKNOWN)
+    assert np.all(cost_map.cost[far] == np.float32(cost_map.options["unknown_cost"]))
+    assert np.isnan(cost_map.slope_deg[~known]).all()
 
 
 def test_inflation_by_the_footprint():

@@ -108,6 +108,35 @@ def group_by(ids, n_groups):
 
 
 @numba.njit(cache=True)
+def relabel_points(component, new_id, members, cluster_ids, n_groups):
+    """The kept clusters' ids for the obstacle points, in one pass each: ``point_ids`` (M,),
+    ``new_id[component[k]]`` or -1 (``component`` -1 = none); ``cluster_ids[members[k]]``
+    set to it (in place); and the members grouped by id in point order, ``indices`` with
+    ``starts`` (n_groups + 1,), as :func:`group_by` on the ids followed by ``members[order]``.
+    """
+    m = component.shape[0]
+    point_ids = np.empty(m, np.int64)
+    starts = np.zeros(n_groups + 1, np.int64)
+    for k in range(m):
+        c = component[k]
+        g = new_id[c] if c >= 0 else -1
+        point_ids[k] = g
+        if g >= 0:
+            cluster_ids[members[k]] = g
+            starts[g + 1] += 1
+    for g in range(n_groups):
+        starts[g + 1] += starts[g]
+    fill = starts[:-1].copy()
+    indices = np.empty(starts[n_groups], np.int64)
+    for k in range(m):
+        g = point_ids[k]
+        if g >= 0:
+            indices[fill[g]] = members[k]
+            fill[g] += 1
+    return point_ids, indices, starts
+
+
+@numba.njit(cache=True)
 def occupancy_mask(ix, iy, nx, ny):
     """(nx, ny) uint8 mask, 1 at every cell (ix[k], iy[k]) (all inside the grid)."""
     mask = np.zeros((nx, ny), np.uint8)
@@ -123,15 +152,6 @@ def labels_at(labels, ix, iy, offset):
     for k in range(ix.shape[0]):
         out[k] = labels[ix[k], iy[k]] + offset
     return out
-
-
-@numba.njit(cache=True)
-def mark_points(ix, iy, indices, occupied):
-    """occupied[ix[k], iy[k]] = True for every k in ``indices`` with a cell (ix[k] >= 0)."""
-    for t in range(indices.shape[0]):
-        k = indices[t]
-        if ix[k] >= 0:
-            occupied[ix[k], iy[k]] = True
 
 
 @numba.njit(cache=True)
@@ -174,31 +194,65 @@ def fill_boxes(centers, sizes, yaws_deg, x_min, y_min, cell_size, occupied):
 
 
 @numba.njit(cache=True)
-def cell_moments(ix, iy, h, use, nx, ny, rough_cap):
-    """Per-cell count, highest h, and count and sum of squares of h over points with
-    h <= rough_cap (the roughness moments of the cost map).
+def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_min, cell_size,
+                   nx, ny, skip_a, skip_b, vehicle_height, rough_cap, occupied):
+    """The points of a cloud put into the cost map's cells, in one pass.
 
-    Only points with ``use[k]``, a cell (ix >= 0) and a finite h count.
+    A point's cell is (floor((x - x_min) / cell_size), floor((y - y_min) / cell_size)), as
+    :func:`bin_points`. Marks ``occupied`` at the cells of the points of tall obstacles
+    (``point_obstacle[k] >= 0`` and ``tall[point_obstacle[k]]``). The points that count for
+    step and roughness (label neither ``skip_a`` nor ``skip_b``, height finite and <=
+    ``vehicle_height``) give the cells holding points and their moments, stored compactly:
+    ``slot`` (nx, ny) int32, the index of the cell's entry or -1, and per entry the point
+    count, the highest height, and the count and sum of squares of the heights <=
+    ``rough_cap`` (the roughness moments), and its cell (``cell_i``, ``cell_j``). Entries
+    are numbered in the order of their first point, and sums run over the points in input
+    order. One int32 grid instead of four whole-grid moment arrays (a few percent of the
+    cells hold points).
     """
-    count = np.zeros((nx, ny), np.int32)
-    highest = np.full((nx, ny), -np.inf)
-    rough_n = np.zeros((nx, ny), np.int32)
-    rough_sum2 = np.zeros((nx, ny))
-    for k in range(ix.shape[0]):
-        i = ix[k]
-        if i < 0 or not use[k]:
+    slot = np.full((nx, ny), -1, np.int32)
+    n = positions.shape[0]
+    count = np.empty(n, np.int32)
+    highest = np.empty(n)
+    rough_n = np.empty(n, np.int32)
+    rough_sum2 = np.empty(n)
+    cell_i = np.empty(n, np.int32)
+    cell_j = np.empty(n, np.int32)
+    m = 0
+    for k in range(n):
+        fx = (positions[k, 0] - x_min) / cell_size
+        fy = (positions[k, 1] - y_min) / cell_size
+        if not (math.isfinite(fx) and math.isfinite(fy)):
             continue
-        v = h[k]
-        if not math.isfinite(v):
+        i = int(math.floor(fx))
+        j = int(math.floor(fy))
+        if i < 0 or j < 0 or i >= nx or j >= ny:
             continue
-        j = iy[k]
-        count[i, j] += 1
-        if v > highest[i, j]:
-            highest[i, j] = v
-        if v <= rough_cap:
-            rough_n[i, j] += 1
-            rough_sum2[i, j] += v * v
-    return count, highest, rough_n, rough_sum2
+        g = point_obstacle[k]
+        if g >= 0 and tall[g]:
+            occupied[i, j] = True
+        if labels[k] == skip_a or labels[k] == skip_b:
+            continue
+        v = heights[k]
+        if not (math.isfinite(v) and v <= vehicle_height):
+            continue
+        e = slot[i, j]
+        if e < 0:
+            e = m
+            slot[i, j] = m
+            cell_i[e] = i
+            cell_j[e] = j
+            m += 1
+            count[e] = 0
+            highest[e] = -np.inf
+            rough_n[e] = 0
+            rough_sum2[e] = 0.0
+        count[e] += 1
+        highest[e] = max(highest[e], v)  # branch-free updates: the comparisons are
+        low = v <= rough_cap  # unpredictable from point to point
+        rough_n[e] += low
+        rough_sum2[e] += v * v if low else 0.0  # + 0.0 leaves the non-negative sum exact
+    return slot, count[:m], highest[:m], rough_n[:m], rough_sum2[:m], cell_i[:m], cell_j[:m]
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -282,22 +336,120 @@ def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
     return out
 
 
-@numba.njit(cache=True, parallel=True, error_model="numpy")
-def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
+@numba.njit(cache=True, error_model="numpy")
+def slope_at_cells(x, y, cell_i, cell_j, knots_x, knots_y, degree, control, weights, tol):
+    """atan |grad S| (radians) of the rational surface at the nodes (x[cell_i[e]],
+    y[cell_j[e]]) (local coordinates) for every entry e (:func:`observed_cells`); NaN outside
+    the knot range widened by ``tol``.
+
+    The same sums in the same order as :func:`gradient_norm_grid` (the y contraction tabulated
+    once for the columns asked for, then degree + 1 scaled terms per node, the x basis once
+    per row), so |grad S| is identical where both compute it; the work is proportional to the
+    nodes asked for, not the grid.
+    """
+    nx = x.shape[0]
+    ny = y.shape[0]
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    m = cell_i.shape[0]
+    out = np.full(m, np.nan)
+    columns = np.zeros(ny, np.bool_)
+    row_start = np.zeros(nx + 1, np.int64)  # the entries grouped by row (counting sort)
+    for e in range(m):
+        columns[cell_j[e]] = True
+        row_start[cell_i[e] + 1] += 1
+    for i in range(nx):
+        row_start[i + 1] += row_start[i]
+    fill = row_start[:-1].copy()
+    by_row = np.empty(m, np.int64)
+    for e in range(m):
+        by_row[fill[cell_i[e]]] = e
+        fill[cell_i[e]] += 1
+    span_y, by, dby = _bs.basis_first_derivative_table(y, n1, p, knots_y, tol)
+    rq = weights * control
+    t_a = np.empty((n0, ny))
+    t_d = np.empty((n0, ny))
+    t_ay = np.empty((n0, ny))
+    t_dy = np.empty((n0, ny))
+    for a in range(n0):
+        for j in range(ny):
+            sy = span_y[j]
+            if not columns[j] or sy < 0:
+                continue
+            va = 0.0
+            vd = 0.0
+            vay = 0.0
+            vdy = 0.0
+            for k in range(p + 1):
+                b = sy - p + k
+                va += by[j, k] * rq[a, b]
+                vd += by[j, k] * weights[a, b]
+                vay += dby[j, k] * rq[a, b]
+                vdy += dby[j, k] * weights[a, b]
+            t_a[a, j] = va
+            t_d[a, j] = vd
+            t_ay[a, j] = vay
+            t_dy[a, j] = vdy
+    bx = np.empty(p + 1)
+    dbx = np.empty(p + 1)
+    lft = np.empty(p + 1)
+    rgt = np.empty(p + 1)
+    for i in range(nx):
+        if row_start[i] == row_start[i + 1]:
+            continue
+        sx = _bs.clamped_basis_first_derivative(x[i], n0, p, knots_x, tol, bx, dbx, lft, rgt)
+        if sx < 0:
+            continue
+        for t in range(row_start[i], row_start[i + 1]):
+            e = by_row[t]
+            j = cell_j[e]
+            if span_y[j] < 0:
+                continue
+            s_a = 0.0
+            s_d = 0.0
+            s_ax = 0.0
+            s_dx = 0.0
+            s_ay = 0.0
+            s_dy = 0.0
+            for k in range(p + 1):
+                a = sx - p + k
+                u = bx[k]
+                du = dbx[k]
+                s_a += u * t_a[a, j]
+                s_d += u * t_d[a, j]
+                s_ax += du * t_a[a, j]
+                s_dx += du * t_d[a, j]
+                s_ay += u * t_ay[a, j]
+                s_dy += u * t_dy[a, j]
+            s = s_a / s_d
+            gx = (s_ax - s * s_dx) / s_d
+            gy = (s_ay - s * s_dy) / s_d
+            out[e] = math.atan(math.sqrt(gx * gx + gy * gy))
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def cost_cells(slot, entry_slope, count, highest, rough_n, rough_sum2, occupied, max_slope_deg,
                lethal_step, max_roughness, w_slope, w_step, w_rough, unknown_cost, free_state,
-               unknown_state):
+               unknown_state, slope_of_unknown, slope_grid):
     """The cost formula of docs/obstacles.md on every cell, before inflation.
 
-    ``slope_rad`` (float64, NaN outside the surface) is atan |grad S| in radians (the
-    arctangent is taken outside, vectorised, on :func:`gradient_norm_grid`); step =
-    max(0, highest), roughness = RMS (NaN where the cell has no point). Returns float32
-    ``slope``, ``step``, ``rough``, ``cost``, bool ``lethal`` (slope over the limit, step over
-    the lethal step, or occupied) and uint8 ``state`` (``free_state`` where the cell has a
-    point, else ``unknown_state``). Decisions are taken in float64. Rows are split over
-    threads; every cell is computed alone, so the result does not depend on the thread count.
+    ``slot`` and the per-entry ``count``, ``highest``, ``rough_n``, ``rough_sum2`` are the
+    cells holding points (:func:`observed_cells`); ``entry_slope`` their atan |grad S| in
+    radians (:func:`slope_at_cells`; NaN outside the surface); step = max(0, highest),
+    roughness = RMS. Returns float32 ``slope``, ``step``, ``rough``, ``cost`` (NaN where
+    undefined), bool ``lethal`` (slope over the limit, step over the lethal step, or occupied)
+    and uint8 ``state`` (``free_state`` where the cell has a point, else ``unknown_state``). A
+    cell without a point costs ``unknown_cost``, has NaN slope and is lethal only when
+    occupied; with ``slope_of_unknown`` (a slope-only map) it takes its slope from
+    ``slope_grid`` (radians, the whole grid), costs max(slope term, ``unknown_cost``) and is
+    lethal over the slope limit too. Decisions are taken in float64. Serial: a fork-join
+    over threads gains ~0.3 ms on an idle second core and loses tens of milliseconds when
+    the cores are shared (threads waiting for one another), see docs/performance.md.
     """
-    nx = slope_rad.shape[0]
-    ny = slope_rad.shape[1]
+    nx = slot.shape[0]
+    ny = slot.shape[1]
     slope = np.empty((nx, ny), np.float32)
     step = np.empty((nx, ny), np.float32)
     rough = np.empty((nx, ny), np.float32)
@@ -306,9 +458,18 @@ def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slo
     state = np.empty((nx, ny), np.uint8)
     total = w_slope + w_step + w_rough
     to_deg = 180.0 / math.pi
-    for i in numba.prange(nx):
+    for i in range(nx):
         for j in range(ny):
-            sl = slope_rad[i, j] * to_deg
+            e = slot[i, j]
+            if e < 0 and not slope_of_unknown:
+                slope[i, j] = np.nan
+                step[i, j] = np.nan
+                rough[i, j] = np.nan
+                cost[i, j] = unknown_cost
+                state[i, j] = unknown_state
+                lethal[i, j] = occupied[i, j]
+                continue
+            sl = (entry_slope[e] if e >= 0 else slope_grid[i, j]) * to_deg
             if math.isnan(sl):
                 slope_term = 1.0
                 is_lethal = False
@@ -316,45 +477,42 @@ def cost_cells(slope_rad, count, highest, rough_n, rough_sum2, occupied, max_slo
                 slope_term = (sl / max_slope_deg) ** 2
                 is_lethal = sl > max_slope_deg
             slope[i, j] = sl
-            known = count[i, j] > 0
-            if known:
-                st = max(highest[i, j], 0.0)
-                step[i, j] = st
-                step_term = (st / lethal_step) ** 2
-                is_lethal = is_lethal or st > lethal_step
-                state[i, j] = free_state
-            else:
+            if e < 0:
                 step[i, j] = np.nan
-                step_term = 0.0
+                rough[i, j] = np.nan
                 state[i, j] = unknown_state
-            if rough_n[i, j] > 0:
-                ro = math.sqrt(rough_sum2[i, j] / rough_n[i, j])
+                cost[i, j] = max(w_slope * slope_term / total, unknown_cost)
+                lethal[i, j] = is_lethal or occupied[i, j]
+                continue
+            st = max(highest[e], 0.0)
+            step[i, j] = st
+            step_term = (st / lethal_step) ** 2
+            is_lethal = is_lethal or st > lethal_step
+            state[i, j] = free_state
+            if rough_n[e] > 0:
+                ro = math.sqrt(rough_sum2[e] / rough_n[e])
                 rough[i, j] = ro
                 rough_term = min(ro / max_roughness, 1.0) ** 2
             else:
                 rough[i, j] = np.nan
                 rough_term = 0.0
-            if known:
-                cost[i, j] = (w_slope * slope_term + w_step * step_term
-                              + w_rough * rough_term) / total
-            else:
-                cost[i, j] = max(w_slope * slope_term / total, unknown_cost)
+            cost[i, j] = (w_slope * slope_term + w_step * step_term + w_rough * rough_term) / total
             lethal[i, j] = is_lethal or occupied[i, j]
     return slope, step, rough, cost, lethal, state
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def row_squared_distance(lethal, reach):
     """Per row, the squared distance (in cells) along the row to the row's nearest ``lethal``
     cell, ``reach``² + 1 beyond ``reach`` cells (int32), and whether each row has a lethal
     cell: the first pass of the separable exact distance transform (Meijster et al. 2000;
-    Felzenszwalb & Huttenlocher 2012) cut off at ``reach``. Rows are split over threads."""
+    Felzenszwalb & Huttenlocher 2012) cut off at ``reach``."""
     nx = lethal.shape[0]
     ny = lethal.shape[1]
     far = reach * reach + 1
     along = np.empty((nx, ny), np.int32)
     row_lethal = np.zeros(nx, np.bool_)
-    for i in numba.prange(nx):
+    for i in range(nx):
         last = -(reach + 1)
         for j in range(ny):
             if lethal[i, j]:
@@ -370,7 +528,7 @@ def row_squared_distance(lethal, reach):
     return along, row_lethal
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radius,
             inflation_scale, inscribed_state, lethal_state):
     """Inflation by the footprint, in place: cells within ``inscribed_radius`` (m) of a lethal
@@ -386,7 +544,7 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
     within ``reach`` of a cell lies within ``reach`` rows and columns of it, so d² is exact
     up to ``reach``²; larger values are only upper bounds and count as beyond the
     circumscribed radius. d² takes at most ``reach``² + 1 values, so the least cost of each
-    is tabulated once. Rows are split over threads.
+    is tabulated once. Serial, as :func:`cost_cells`.
     """
     nx = cost.shape[0]
     ny = cost.shape[1]
@@ -402,58 +560,72 @@ def inflate(cost, state, lethal, cell_size, inscribed_radius, circumscribed_radi
             least[k] = -1.0
         elif d <= circumscribed_radius:
             least[k] = 0.99 * math.exp(-(d - inscribed_radius) / inflation_scale)
-    chunk = 16  # rows per task: one d² buffer per chunk
-    for c in numba.prange((nx + chunk - 1) // chunk):
-        d2 = np.empty(ny, np.int32)
-        first = np.int64(c) * chunk  # the prange index may be unsigned: -i would wrap
-        for i in range(first, min(first + chunk, nx)):
-            d2[:] = far
-            for a in range(max(-reach, -i), min(reach, nx - 1 - i) + 1):
-                if row_lethal[i + a]:
-                    a2 = a * a
-                    for j in range(ny):
-                        d2[j] = min(d2[j], a2 + along[i + a, j])
-            for j in range(ny):
-                if lethal[i, j]:
-                    state[i, j] = lethal_state
-                    cost[i, j] = 1.0
-                    continue
-                floor = least[min(d2[j], far)]
-                if floor < 0:
-                    state[i, j] = inscribed_state
-                    cost[i, j] = 1.0
-                else:
-                    cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
+    d2 = np.empty(ny, np.int32)
+    for i in range(nx):
+        d2[:] = far
+        for a in range(max(-reach, -i), min(reach, nx - 1 - i) + 1):
+            if row_lethal[i + a]:
+                a2 = a * a
+                for j in range(ny):
+                    d2[j] = min(d2[j], a2 + along[i + a, j])
+        for j in range(ny):
+            if lethal[i, j]:
+                state[i, j] = lethal_state
+                cost[i, j] = 1.0
+                continue
+            floor = least[min(d2[j], far)]
+            if floor < 0:
+                state[i, j] = inscribed_state
+                cost[i, j] = 1.0
+            else:
+                cost[i, j] = min(max(float(cost[i, j]), floor), 0.99)
 
 
 @numba.njit(cache=True)
-def hull_candidates_by_cell(cluster, ix, iy, ny, n_cells, x, y):
-    """Sorted indices of the points extreme along x, y, x + y and x - y (both signs) in their
-    cell, over the points with ``cluster >= 0`` (cell = ix * ny + iy, < n_cells).
+def grid_box_candidates(cluster, ix, iy, cell_labels, x, y, n_clusters):
+    """The points extreme along x, y, x + y and x - y (both signs) in their cell
+    (:func:`hull_candidates`), over the points with ``cluster >= 0``, for clusterings where
+    every cell belongs to one cluster (the grid clustering).
 
-    The same candidates as :func:`hull_candidates` on cells ranked in point order (ties go to
-    the first point), for clusterings where every cell belongs to one cluster.
+    The connected-components label image (``cell_labels`` (nx, ny) int32, > 0 at occupied
+    cells) serves as the per-cell slot table: it is overwritten (the cells of kept clusters
+    get -1 - slot) instead of filling a fresh whole-grid table. Slots are numbered in point
+    order and ties go to the first point. Returns the candidates' x, y grouped by cluster, in
+    point order within a cluster, and ``starts`` (n_clusters + 1,).
     """
-    slot = np.full(n_cells, -1, np.int32)
+    m = cluster.shape[0]
     n_slots = 0
-    for k in range(cluster.shape[0]):
-        if cluster[k] >= 0:
-            c = ix[k] * ny + iy[k]
-            if slot[c] < 0:
-                slot[c] = n_slots
-                n_slots += 1
+    for k in range(m):
+        if cluster[k] >= 0 and cell_labels[ix[k], iy[k]] > 0:
+            cell_labels[ix[k], iy[k]] = -1 - n_slots
+            n_slots += 1
     best = np.full((n_slots, 8), -1, np.int64)
     value = np.empty((n_slots, 8))
-    for k in range(cluster.shape[0]):
+    for k in range(m):
         if cluster[k] < 0:
             continue
-        c = slot[ix[k] * ny + iy[k]]
+        c = -1 - cell_labels[ix[k], iy[k]]
         _keep_extremes(best, value, c, k, x[k], y[k])
-    mark = np.zeros(cluster.shape[0], np.bool_)
+    mark = np.zeros(m, np.bool_)
     for c in range(n_slots):
         for d in range(8):
             mark[best[c, d]] = True
-    return np.flatnonzero(mark)
+    starts = np.zeros(n_clusters + 1, np.int64)
+    for k in range(m):
+        if mark[k]:
+            starts[cluster[k] + 1] += 1
+    for g in range(n_clusters):
+        starts[g + 1] += starts[g]
+    fill = starts[:-1].copy()
+    cx = np.empty(starts[n_clusters])
+    cy = np.empty(starts[n_clusters])
+    for k in range(m):
+        if mark[k]:
+            g = cluster[k]
+            cx[fill[g]] = x[k]
+            cy[fill[g]] = y[k]
+            fill[g] += 1
+    return cx, cy, starts
 
 
 @numba.njit(cache=True)
@@ -500,3 +672,189 @@ def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell
             iy[t] = int(math.floor((positions[k, 1] - y_low) / cell_size))
             t += 1
     return members, points, ix, iy
+
+
+@numba.njit(cache=True)
+def _convex_hull(px, py, hull):
+    """Andrew's monotone chain (Andrew 1979): the convex hull of the points (px, py) into
+    ``hull`` (indices, counter-clockwise, no collinear vertices); returns the vertex count
+    (1 when all points coincide, 2 when they are collinear)."""
+    n = px.shape[0]
+    order = np.argsort(px, kind="mergesort")
+    start = 0  # equal x: sort the run by y (runs are short: insertion sort)
+    while start < n:
+        stop = start + 1
+        while stop < n and px[order[stop]] == px[order[start]]:
+            stop += 1
+        for a in range(start + 1, stop):
+            v = order[a]
+            b = a - 1
+            while b >= start and py[order[b]] > py[v]:
+                order[b + 1] = order[b]
+                b -= 1
+            order[b + 1] = v
+        start = stop
+    m = 0
+    for t in range(n):  # lower chain
+        k = order[t]
+        while m >= 2 and ((px[hull[m - 1]] - px[hull[m - 2]]) * (py[k] - py[hull[m - 2]])
+                          - (py[hull[m - 1]] - py[hull[m - 2]]) * (px[k] - px[hull[m - 2]])) <= 0:
+            m -= 1
+        hull[m] = k
+        m += 1
+    lower = m + 1
+    for t in range(n - 2, -1, -1):  # upper chain
+        k = order[t]
+        while m >= lower and ((px[hull[m - 1]] - px[hull[m - 2]]) * (py[k] - py[hull[m - 2]])
+                              - (py[hull[m - 1]] - py[hull[m - 2]])
+                              * (px[k] - px[hull[m - 2]])) <= 0:
+            m -= 1
+        hull[m] = k
+        m += 1
+    m -= 1  # the last point repeats the first
+    if m < 1:
+        m = 1
+    if m == 2 and px[hull[0]] == px[hull[1]] and py[hull[0]] == py[hull[1]]:
+        m = 1
+    return m
+
+
+@numba.njit(cache=True)
+def _outside_octagon(x, y, s0, s1, ox, oy, bx, by):
+    """Akl & Toussaint (1978) pre-filter: the points of ``x[s0:s1]``, ``y[s0:s1]`` (shifted by
+    -ox, -oy) not strictly inside the polygon of the extreme points along x, x + y, y, y - x,
+    -x, -x - y, -y, x - y, written to ``bx``, ``by``; returns their count. Hull vertices are
+    never strictly inside it, so the hull of the kept points is the hull of all."""
+    best = np.empty(8, np.int64)
+    value = np.full(8, -np.inf)
+    for k in range(s0, s1):
+        a = x[k] - ox
+        b = y[k] - oy
+        keys = (a, a + b, b, b - a, -a, -a - b, -b, a - b)
+        for d in range(8):
+            if keys[d] > value[d]:
+                value[d] = keys[d]
+                best[d] = k
+    # the octagon's vertices in counter-clockwise order (repeats allowed)
+    qx = np.empty(8)
+    qy = np.empty(8)
+    for d in range(8):
+        qx[d] = x[best[d]] - ox
+        qy[d] = y[best[d]] - oy
+    n = 0
+    for k in range(s0, s1):
+        a = x[k] - ox
+        b = y[k] - oy
+        inside = value[0] + value[4] > 0.0  # an octagon of one point holds nothing
+        for d in range(8):
+            e = (d + 1) % 8
+            ex = qx[e] - qx[d]
+            ey = qy[e] - qy[d]
+            if ex == 0.0 and ey == 0.0:
+                continue
+            if ex * (b - qy[d]) - ey * (a - qx[d]) <= 0.0:
+                inside = False
+                break
+        if not inside:
+            bx[n] = a
+            by[n] = b
+            n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def min_area_boxes(x, y, starts):
+    """The minimum-area rectangle of each group of points ``x[starts[g]:starts[g + 1]]``,
+    ``y[...]`` (Freeman & Shapira 1975: one side of the least-area enclosing rectangle lies
+    along a convex hull edge; every hull edge is tried).
+
+    Areas within a relative 1e-9 of each other count as equal, and of equal areas the
+    smallest perimeter wins (then the first edge): several edges can give the same area (all
+    three edges of an acute triangle give twice its area), and without a rule the choice
+    would follow rounding. ``cv2.minAreaRect`` (float32) picks among such ties by rounding,
+    so it can return another of the equal-area rectangles.
+
+    Computed in float64 on coordinates relative to each group's first point. Returns
+    ``centers`` (G, 2), ``sizes`` (G, 2) as (length, width) with length >= width, and
+    ``yaws`` (G,) in degrees, the direction of the length in (-90, 90] (for length == width,
+    the direction of the side along the chosen hull edge). A group of coincident points gives
+    size (0, 0) and yaw 90; collinear points give width 0 and the line's direction.
+    """
+    g_count = starts.shape[0] - 1
+    centers = np.empty((g_count, 2))
+    sizes = np.empty((g_count, 2))
+    yaws = np.empty(g_count)
+    largest = 0
+    for g in range(g_count):
+        largest = max(largest, starts[g + 1] - starts[g])
+    hull = np.empty(largest + 1, np.int64)
+    bx = np.empty(largest)
+    by = np.empty(largest)
+    to_deg = 180.0 / math.pi
+    for g in range(g_count):
+        s0 = starts[g]
+        s1 = starts[g + 1]
+        ox = x[s0]
+        oy = y[s0]
+        n = _outside_octagon(x, y, s0, s1, ox, oy, bx, by)
+        px = bx[:n]
+        py = by[:n]
+        m = _convex_hull(px, py, hull)
+        if m == 1:
+            centers[g, 0] = ox + px[hull[0]]
+            centers[g, 1] = oy + py[hull[0]]
+            sizes[g, 0] = 0.0
+            sizes[g, 1] = 0.0
+            yaws[g] = 90.0  # as cv2.minAreaRect
+            continue
+        best = np.inf
+        best_perimeter = np.inf
+        bu0 = bu1 = bv0 = bv1 = ux_best = uy_best = 0.0
+        edges = m if m > 2 else 1
+        for e in range(edges):
+            a = hull[e]
+            b = hull[(e + 1) % m]
+            ex = px[b] - px[a]
+            ey = py[b] - py[a]
+            length = math.sqrt(ex * ex + ey * ey)
+            ux = ex / length
+            uy = ey / length
+            u0 = np.inf
+            u1 = -np.inf
+            v0 = np.inf
+            v1 = -np.inf
+            for t in range(m):
+                k = hull[t]
+                u = px[k] * ux + py[k] * uy
+                v = -px[k] * uy + py[k] * ux
+                u0 = min(u0, u)
+                u1 = max(u1, u)
+                v0 = min(v0, v)
+                v1 = max(v1, v)
+            area = (u1 - u0) * (v1 - v0)
+            perimeter = (u1 - u0) + (v1 - v0)
+            if area < best * (1.0 - 1e-9) or (area <= best * (1.0 + 1e-9)
+                                               and perimeter < best_perimeter):
+                best = area
+                best_perimeter = perimeter
+                bu0, bu1, bv0, bv1, ux_best, uy_best = u0, u1, v0, v1, ux, uy
+        cu = 0.5 * (bu0 + bu1)
+        cv = 0.5 * (bv0 + bv1)
+        centers[g, 0] = ox + cu * ux_best - cv * uy_best
+        centers[g, 1] = oy + cu * uy_best + cv * ux_best
+        along = bu1 - bu0
+        across = bv1 - bv0
+        if along >= across:
+            sizes[g, 0] = along
+            sizes[g, 1] = across
+            yaw = math.atan2(uy_best, ux_best) * to_deg
+        else:
+            sizes[g, 0] = across
+            sizes[g, 1] = along
+            yaw = math.atan2(ux_best, -uy_best) * to_deg
+        while yaw > 90.0:
+            yaw -= 180.0
+        while yaw <= -90.0:
+            yaw += 180.0
+        yaws[g] = yaw
+    return centers, sizes, yaws

@@ -72,8 +72,9 @@ class TraversabilityCost(Stage):
 
     Slope comes from the surface's derivatives; step and roughness from the points' heights
     above the surface; occupancy from the ``obstacles`` product when an ObstacleDetector ran.
-    Lethal cells are inflated by the vehicle footprint. Writes the ``cost_map`` product (a
-    CostMap) and the per-point ``costs`` (cost of the cell under the point). The formula is in
+    Cells without any point are UNKNOWN at ``unknown_cost`` (no work is spent on them). Lethal
+    cells are inflated by the vehicle footprint. Writes the ``cost_map`` product (a CostMap)
+    and the per-point ``costs`` (cost of the cell under the point). The formula is in
     docs/obstacles.md.
     """
 
@@ -95,7 +96,7 @@ class TraversabilityCost(Stage):
                            check=check_region,
                            help="x_min, x_max, y_min, y_max of the map; null = the surface's region")
     unknown_cost: float = option(0.5, rule=UNIT_INTERVAL,
-                                 help="least cost of a cell without any point")
+                                 help="cost of a cell without any point (UNKNOWN)")
     slope_weight: float = option(0.5, rule=NON_NEGATIVE, help="weight of the slope term")
     step_weight: float = option(0.3, rule=NON_NEGATIVE, help="weight of the step-height term")
     roughness_weight: float = option(0.2, rule=NON_NEGATIVE, help="weight of the roughness term")

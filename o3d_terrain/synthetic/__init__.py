@@ -34,6 +34,7 @@ from .sensors import (
     sensor_pose,
     terrain_rmse,
 )
+from .sequence import sequence_ground, synthetic_sequence
 from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
@@ -43,3 +44,5 @@ __all__ = [
     "render_stereo_pair", "rotation_matrix", "sample_lidar", "sample_sequence", "sample_stereo",
     "section6_scene", "sensor_pose", "terrain_rmse", "texture", "value_noise",
 ]
+
+__all__ += ["sequence_ground", "synthetic_sequence"]  # from .sequence (tracking sequences)
