@@ -124,11 +124,15 @@ class GridNoise:
         max(lowest, mean − sqrt(max(spread² − σ_h², 0))), on cells whose sample is eq. 1's
         (a ground-layer sample is kept). Eq. 1's "− σ" is meant to discount obstacle points;
         a cell of pure terrain with range noise σ_h would otherwise sit σ_h low.
-        sample_sigma: σ_h / sqrt(count), the noise of such a sample (0 on empty cells), which
-        the robust weights add to their noise scale cell by cell."""
+        sample_sigma: σ_h / sqrt(count), the noise of such a sample, on cells whose whole
+        spread the sensor noise explains (spread <= σ_h: the sample is their mean; no sign
+        of an object in the cell), else 0; the robust weights add it to their noise scale
+        cell by cell, so a noisy far cell of terrain is not down-weighted for lying above the
+        surface (which would pull the surface low) while a cell on an object face is."""
         sigma = self.sigma(surface)
         excess = np.sqrt(np.maximum(self.spread ** 2 - sigma ** 2, 0.0))
         corrected = np.maximum(self.grid.lowest, self.mean - excess)
         samples = np.where(self.use & np.isfinite(corrected), corrected, self.samples)
         count = self.grid.count
-        return samples, np.where(count > 0, sigma / np.sqrt(np.maximum(count, 1)), 0.0)
+        noise_only = (count > 0) & (self.spread <= sigma)
+        return samples, np.where(noise_only, sigma / np.sqrt(np.maximum(count, 1)), 0.0)
