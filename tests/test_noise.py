@@ -113,3 +113,33 @@ def test_bad_models_are_rejected_with_the_reason():
         RangeNoise((0.0, 0.0, 0.0), -0.1)
     with pytest.raises(InputError, match="baseline"):
         RangeNoise.from_stereo(focal_px=100.0, baseline=0.0, disparity_noise_px=0.2)
+
+
+def test_stereo_source_attaches_the_rig_model_and_the_terrain_stage_uses_it():
+    from o3d_terrain.stages.grid_quantize import GridQuantize
+    from o3d_terrain.stages.stereo import StereoToCloud
+    from o3d_terrain.synthetic import render_stereo_pair
+
+    pair = render_stereo_pair(make_scene("flat", seed=0), width=160, height=120)
+    options = {"frame": "vehicle", "camera_height": 1.6, "pitch_deg": 5.0,
+               "depth_range": (3.0, 30.0)}
+    frame = StereoToCloud.from_images(pair.left, pair.right, pair.calibration,
+                                      disparity_noise_px=0.3, **options)
+    model = frame.product("range_noise")
+    cal = pair.calibration
+    assert model.coefficient == pytest.approx(0.3 / (cal["fx"] * cal["baseline"]))
+    assert model.sensor_origin == pytest.approx((0.0, 0.0, 1.6))
+    assert "range_noise" not in StereoToCloud.from_images(
+        pair.left, pair.right, pair.calibration, **options).products
+    grid_frame = GridQuantize()(frame)
+    stage = RationalBSplineTerrain()
+    from_product = stage(grid_frame).product("surface")
+    explicit = stage.fit(grid_frame.product("grid"), grid_frame.positions, model).surface
+    plain = stage.fit(grid_frame.product("grid"), grid_frame.positions).surface
+    x, y = grid_frame.positions[:, 0], grid_frame.positions[:, 1]
+    assert np.nanmax(np.abs(from_product(x, y) - explicit(x, y))) < 1e-12
+    assert np.nanmax(np.abs(from_product(x, y) - plain(x, y))) > 1e-6  # the model is used
+    # the stage's own option wins over the product
+    option = RationalBSplineTerrain(range_noise=model.coefficient, sensor_origin=(0, 0, 1.6))
+    assert np.nanmax(np.abs(option(grid_frame).product("surface")(x, y)
+                            - explicit(x, y))) < 1e-12
