@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from o3d_terrain.api import auto_threshold  # noqa: E402
+from o3d_terrain.evaluation.datasets import SYNTHETIC_STEREO_RIG  # noqa: E402
 from o3d_terrain.grid import quantize_points, region_of  # noqa: E402
 from o3d_terrain.noise import RangeNoise  # noqa: E402
 from o3d_terrain.segment import TerrainLabel, segment_points  # noqa: E402
@@ -45,10 +46,8 @@ from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
 FIT_OPTIONS: dict = {}
 
 
-#: the synthetic stereo rig as its user knows it (``sample_stereo``'s defaults): 320 px wide
-#: images with a 0.8 * width focal length, 0.3 m baseline, 0.25 px disparity noise; the cloud
-#: is in the left camera's sensor frame, so the camera sits at the origin
-STEREO_RIG = {"focal_px": 0.8 * 320, "baseline": 0.3, "disparity_noise_px": 0.25}
+#: the synthetic stereo rig as its user knows it (calibration and disparity noise)
+STEREO_RIG = SYNTHETIC_STEREO_RIG
 
 #: give stereo clouds their noise model (``--no-range-noise`` turns it off)
 USE_RANGE_NOISE = True

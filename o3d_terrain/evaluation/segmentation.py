@@ -217,11 +217,15 @@ def evaluate_segmentation(
             continue
         try:
             if isinstance(method, str):
-                key = (item.kind, item.sensor_height)
+                # our method gets the frame's sensor noise model when it has one (stereo)
+                noise = ({"range_noise": item.range_noise}
+                         if item.range_noise is not None and method in (OURS, "ours") else {})
+                key = (item.kind, item.sensor_height, item.range_noise)
                 if key not in cache:
                     cache[key] = (method_for_kind(item.kind) if method_for_kind
                                   else resolve_method(method, kind=item.kind,
-                                                      sensor_height=item.sensor_height))
+                                                      sensor_height=item.sensor_height,
+                                                      **noise))
                 run = cache[key]
             else:
                 run = method
