@@ -30,7 +30,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["RangeNoise", "GridNoise"]
+__all__ = ["RangeNoise", "GridNoise", "height_sigma"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,18 @@ class RangeNoise:
         """(N,) noise along the ray σ_ρ (m) of (N, 3) positions."""
         d = np.asarray(positions, dtype=np.float64)[:, :3] - np.asarray(self.sensor_origin)
         return self.coefficient * np.einsum("ij,ij->i", d, d)
+
+
+def height_sigma(model: RangeNoise, surface, positions: np.ndarray) -> np.ndarray:
+    """(N,) height noise σ_h (m) of each point over the surface z = S(x, y) (a
+    :class:`~o3d_terrain.spline.TerrainSurface`): σ_ρ(ρ) · |d_z − S_x d_x − S_y d_y| with d
+    the unit ray from the sensor to the point; NaN where the surface is undefined."""
+    p = np.asarray(positions, dtype=np.float64)[:, :3]
+    d = p - np.asarray(model.sensor_origin)
+    rho = np.sqrt(np.einsum("ij,ij->i", d, d))
+    sx, sy = surface.gradient(p[:, 0], p[:, 1])
+    along = np.abs(d[:, 2] - sx * d[:, 0] - sy * d[:, 1])  # = rho |d_z - S_x d_x - S_y d_y|
+    return model.coefficient * rho * along
 
 
 class GridNoise:

@@ -143,3 +143,21 @@ def test_stereo_source_attaches_the_rig_model_and_the_terrain_stage_uses_it():
     option = RationalBSplineTerrain(range_noise=model.coefficient, sensor_origin=(0, 0, 1.6))
     assert np.nanmax(np.abs(option(grid_frame).product("surface")(x, y)
                             - explicit(x, y))) < 1e-12
+
+
+def test_height_sigma_of_points_on_a_plane():
+    """Per-point height noise over a plane z = a x: sigma_rho |d_z - a d_x| (unit ray d)."""
+    from o3d_terrain.noise import height_sigma
+
+    x = np.linspace(2.0, 30.0, 50)
+    points = np.column_stack([x, np.zeros_like(x), 0.1 * x])
+    model = RangeNoise((0.0, 0.0, 1.5), 0.002)
+
+    class Plane:
+        def gradient(self, x, y):
+            return np.full_like(x, 0.1), np.zeros_like(y)
+
+    d = points - np.array(model.sensor_origin)
+    rho = np.linalg.norm(d, axis=1)
+    expected = model.coefficient * rho ** 2 * np.abs(d[:, 2] / rho - 0.1 * d[:, 0] / rho)
+    assert height_sigma(model, Plane(), points) == pytest.approx(expected, rel=1e-12)
