@@ -148,9 +148,10 @@ def fit_grid_detailed(
         (:func:`o3d_terrain.ground_layer.ground_layer_samples`).
     ground_layer: (robust) use the ground-layer samples when ``positions`` are given.
     range_noise: (robust, with ``positions``) the sensor's range-dependent noise
-        (:class:`o3d_terrain.noise.RangeNoise`, e.g. a stereo rig's): per-cell samples, noise
-        scales and prior tolerance from it (:func:`o3d_terrain.noise.noise_samples`); None =
-        one noise scale for the whole grid.
+        (:class:`o3d_terrain.noise.RangeNoise`, e.g. a stereo rig's): from the second layout
+        on, eq. 1 samples discount only the spread the noise does not explain and cells of
+        pure noise add their sample's noise to the weights' noise scale
+        (:class:`o3d_terrain.noise.GridNoise`); None = one noise scale for the whole grid.
     """
     problems = []
     if method not in METHODS:
