@@ -2,7 +2,8 @@
 
 1. Synthetic scenes with exact truth (``o3d_terrain.synthetic``, seed 0, default obstacles):
    lidar (2 cm range noise), stereo-like (0.25 px disparity noise) and lidar tilted (5°, 3°).
-   ``fit_terrain(positions)`` with defaults. Columns: RMSE of the surface under every true
+   ``fit_terrain(positions)`` with defaults; stereo clouds with the rig's noise model
+   (:data:`STEREO_RIG`, ``--no-range-noise``: without). Columns: RMSE of the surface under every true
    terrain point, RMSE over 0.5 m cells with terrain data (``terrain_rmse``), ground F1 with a
    fixed 0.2 m threshold (0.5 m below), the F1 the exact terrain scores with the same
    thresholds, and obstacle recall (obstacle points > 0.3 m above the terrain labelled
@@ -18,7 +19,7 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
-     [--no-terrain-prior]
+     [--no-terrain-prior] [--no-range-noise]
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from o3d_terrain.api import auto_threshold  # noqa: E402
+from o3d_terrain.evaluation.datasets import SYNTHETIC_STEREO_RIG  # noqa: E402
 from o3d_terrain.grid import quantize_points, region_of  # noqa: E402
+from o3d_terrain.noise import RangeNoise  # noqa: E402
 from o3d_terrain.segment import TerrainLabel, segment_points  # noqa: E402
 from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
 
@@ -43,12 +46,20 @@ from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
 FIT_OPTIONS: dict = {}
 
 
-def fit_terrain(positions: np.ndarray, method: str = "robust"):
+#: the synthetic stereo rig as its user knows it (calibration and disparity noise)
+STEREO_RIG = SYNTHETIC_STEREO_RIG
+
+#: give stereo clouds their noise model (``--no-range-noise`` turns it off)
+USE_RANGE_NOISE = True
+
+
+def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None):
     """What ``o3d_terrain.fit_terrain`` does with its defaults (0.5 m cells, the cloud's
     extent), with FIT_OPTIONS passed to the fit."""
     finite = positions[np.isfinite(positions).all(axis=1)]
     grid = quantize_points(finite, cell_size=0.5, region=region_of(finite))
-    return fit_grid_detailed(grid, method=method, positions=finite, **FIT_OPTIONS).surface
+    return fit_grid_detailed(grid, method=method, positions=finite, range_noise=range_noise,
+                             **FIT_OPTIONS).surface
 
 
 def segment_terrain(positions: np.ndarray, method: str = "robust"):
@@ -110,8 +121,11 @@ def synthetic_row(scene_name, sensor: str, method: str) -> dict[str, float]:
         cloud = sample_stereo(scene, seed=0)
     positions = np.asarray(cloud.positions, dtype=np.float64)
     usable = ~cloud.is_outlier & np.isfinite(positions).all(axis=1)
+    range_noise = None
+    if sensor == "stereo" and USE_RANGE_NOISE:
+        range_noise = RangeNoise.from_stereo(**STEREO_RIG)
     start = time.perf_counter()
-    surface = fit_terrain(positions, method=method)
+    surface = fit_terrain(positions, method=method, range_noise=range_noise)
     seconds = time.perf_counter() - start
     terrain = usable & ~cloud.is_obstacle
     x, y = positions[:, 0], positions[:, 1]
@@ -215,7 +229,11 @@ def main() -> None:
     parser.add_argument("--peers", action="store_true", help="CSF and SMRF on the LAS tiles")
     parser.add_argument("--no-terrain-prior", action="store_true",
                         help="fit with terrain_prior=False (plain robust weights)")
+    parser.add_argument("--no-range-noise", action="store_true",
+                        help="fit stereo clouds without their noise model (STEREO_RIG)")
     args = parser.parse_args()
+    global USE_RANGE_NOISE
+    USE_RANGE_NOISE = not args.no_range_noise
     if args.no_terrain_prior:
         FIT_OPTIONS["terrain_prior"] = False
     parts = set(args.only.split(","))

@@ -30,12 +30,17 @@ import numpy as np
 from o3d_terrain.api import fit_terrain
 from o3d_terrain.grid import MEASURED, quantize_points
 from o3d_terrain.io import render_grid_image
+from o3d_terrain.noise import RangeNoise
 from o3d_terrain.stereo import (
     StereoCloud, camera_to_vehicle_matrix, compute_disparity, disparity_errors, lidar_in_camera,
     load_calibration, read_pfm,
 )
 
 REPO = Path(__file__).resolve().parents[1]
+
+#: disparity noise assumed for the noise-model rows (px at the matching resolution): about
+#: 1.4826 x the median disparity error of the matcher on Middlebury (0.176 px)
+DISPARITY_NOISE_PX = 0.25
 
 
 def data_root() -> Path | None:
@@ -135,15 +140,22 @@ def kitti(root: Path, out: Path) -> None:
                  for p in (stereo_points, lidar_points)]
         common = (grids[0].state == MEASURED) & (grids[1].state == MEASURED)
         x, y = np.meshgrid(grids[0].x_centers, grids[0].y_centers, indexing="ij")
-        surfaces = [fit_terrain(p, region=region, cell_size=cell) for p in (stereo_points, lidar_points)]
-        diff = surfaces[0](x[common], y[common]) - surfaces[1](x[common], y[common])
-        bands = []
-        for near, far in ((5, 10), (10, 20), (20, 30)):
-            m = (x[common] >= near) & (x[common] < far)
-            bands.append(f"{near}-{far} m {np.median(np.abs(diff[m])):.3f}")
-        print(f"  terrain, {cell} m cells: {int(common.sum())} common cells, median |dh| "
-              f"{np.median(np.abs(diff)):.3f} m (by range: {', '.join(bands)}), "
-              f"90th percentile {np.percentile(np.abs(diff), 90):.3f} m, mean {diff.mean():+.3f} m")
+        lidar_surface = fit_terrain(lidar_points, region=region, cell_size=cell)
+        # the rig's noise model (camera at the origin of the levelled frame)
+        model = RangeNoise.from_stereo(focal_px=calib.fx, baseline=calib.baseline,
+                                       disparity_noise_px=DISPARITY_NOISE_PX)
+        for label, noise in (("", None), (" with the noise model", model)):
+            surfaces = [fit_terrain(stereo_points, region=region, cell_size=cell,
+                                    range_noise=noise), lidar_surface]
+            diff = surfaces[0](x[common], y[common]) - surfaces[1](x[common], y[common])
+            bands = []
+            for near, far in ((5, 10), (10, 20), (20, 30)):
+                m = (x[common] >= near) & (x[common] < far)
+                bands.append(f"{near}-{far} m {np.median(np.abs(diff[m])):.3f}")
+            print(f"  terrain{label}, {cell} m cells: {int(common.sum())} common cells, median "
+                  f"|dh| {np.median(np.abs(diff)):.3f} m (by range: {', '.join(bands)}), 90th "
+                  f"percentile {np.percentile(np.abs(diff), 90):.3f} m, mean {diff.mean():+.3f} m")
+        surfaces[0] = fit_terrain(stereo_points, region=region, cell_size=cell)
         if cell == 0.5:
             values = np.where(common, surfaces[0](x, y) - surfaces[1](x, y), np.nan)
             save(out, "kitti_terrain_difference.png",
@@ -176,10 +188,15 @@ def synthetic(out: Path) -> None:
         cols = frame.attribute("image_columns") * downscale
         ids = pair.obstacle_ids[rows, cols].astype(np.int64)
         cloud = SyntheticCloud(sensor, sensor.copy(), ids, pair.world_from_left, scene, "stereo")
-        error = terrain_rmse(fit_terrain(sensor, region=region), cloud, region=region)
-        print(f"  downscale {downscale}: terrain RMSE {error.rmse:.3f} m, mean |e| "
-              f"{error.mean_abs:.3f} m, bias {error.bias:+.3f} m over {error.samples} covered nodes "
-              f"({len(frame)} points)")
+        model = RangeNoise.from_stereo(focal_px=pair.calibration["fx"] / downscale,
+                                       baseline=pair.calibration["baseline"],
+                                       disparity_noise_px=DISPARITY_NOISE_PX)
+        for label, noise in (("", None), (" with the noise model", model)):
+            error = terrain_rmse(fit_terrain(sensor, region=region, range_noise=noise), cloud,
+                                 region=region)
+            print(f"  downscale {downscale}{label}: terrain RMSE {error.rmse:.3f} m, mean |e| "
+                  f"{error.mean_abs:.3f} m, bias {error.bias:+.3f} m over {error.samples} covered "
+                  f"nodes ({len(frame)} points)")
     exact = pair.true_cloud(max_range=40.0)
     error = terrain_rmse(fit_terrain(exact.positions, region=region), exact, region=region)
     print(f"  exact stereo points (no matching error): terrain RMSE {error.rmse:.3f} m over "

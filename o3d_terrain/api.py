@@ -17,6 +17,7 @@ import numpy as np
 from .errors import ConfigError, InputError
 from .frame import LABELS, Frame, as_frame
 from .grid import quantize_points, region_of
+from .noise import RangeNoise
 from .segment import TerrainLabel
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
@@ -84,14 +85,27 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
-                    terrain_prior):
+                    terrain_prior, range_noise=None, sensor_origin=(0.0, 0.0, 0.0)):
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
+    noise = {}
+    if isinstance(range_noise, RangeNoise):
+        noise = {"range_noise": range_noise.coefficient,
+                 "sensor_origin": range_noise.sensor_origin}
+    elif range_noise is not None:
+        noise = {"range_noise": range_noise, "sensor_origin": _origin(sensor_origin)}
     terrain = _build(RationalBSplineTerrain,
                      control_points=None if control_points is None else tuple(control_points),
                      degree=degree, method=method, smoothing=smoothing,
-                     terrain_prior=terrain_prior)
+                     terrain_prior=terrain_prior, **noise)
     return quantize, terrain
+
+
+def _origin(sensor_origin) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in sensor_origin)
+    except (TypeError, ValueError):
+        raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
 
 
 def _checked_region(positions: np.ndarray, region):
@@ -108,10 +122,11 @@ def _checked_region(positions: np.ndarray, region):
 
 
 def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
-                   smoothing, terrain_prior=True) -> Frame:
+                   smoothing, terrain_prior=True, range_noise=None,
+                   sensor_origin=(0.0, 0.0, 0.0)) -> Frame:
     """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                        smoothing, terrain_prior)
+                                        smoothing, terrain_prior, range_noise, sensor_origin)
     frame = as_frame(cloud)
     _checked_region(frame.positions, quantize.region)
     return terrain(quantize(frame))
@@ -139,7 +154,8 @@ def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: fl
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
                 control_points: Sequence[int] | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,
-                terrain_prior: bool = True) -> TerrainSurface:
+                terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
+                sensor_origin: Sequence[float] = (0.0, 0.0, 0.0)) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -149,6 +165,9 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     terrain_prior: do not reject compact cells connected to the ground under a 45° slope
     limit as obstacles (steep berms and ditch walls; docs/algorithm.md); False = plain robust
     weights.
+    range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`
+    (e.g. ``RangeNoise.from_stereo(focal_px=..., baseline=..., disparity_noise_px=...)``) or
+    its coefficient in 1/m with ``sensor_origin`` (cloud coordinates); None = none (lidar).
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
@@ -156,10 +175,10 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                            smoothing, terrain_prior)
+                                            smoothing, terrain_prior, range_noise, sensor_origin)
         return _array_fit(positions, quantize, terrain)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
-                           terrain_prior)
+                           terrain_prior, range_noise, sensor_origin)
     return frame.product("surface")
 
 
@@ -168,15 +187,16 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     degree: int = 3, distance_threshold: float | None = None,
                     below_threshold: float = 0.5, range_coefficient: float = 0.0,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
-                    smoothing: float = 0.05,
-                    terrain_prior: bool = True) -> tuple[TerrainSurface, np.ndarray]:
+                    smoothing: float = 0.05, terrain_prior: bool = True,
+                    range_noise: RangeNoise | float | None = None
+                    ) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
     range_coefficient * r^2 (r: horizontal range from ``sensor_origin``).
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
     just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`). Other options
-    as in :func:`fit_terrain`.
+    as in :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
@@ -189,12 +209,12 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                            smoothing, terrain_prior)
+                                            smoothing, terrain_prior, range_noise, origin)
         surface = _array_fit(positions, quantize, terrain)
         labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
         return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
-                           terrain_prior)
+                           terrain_prior, range_noise, origin)
     frame = segmenter(frame)
     labels = frame.attribute(LABELS)
     return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)

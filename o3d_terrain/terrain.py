@@ -26,9 +26,11 @@ import numpy as np
 
 from .errors import InputError
 from ._kernels import ground as _ground
+from ._kernels import noise as _nk
 from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
 from .ground_layer import default_layer, ground_layer_samples
+from .noise import GridNoise, RangeNoise
 from .spline import GridBasis, TerrainSurface
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
@@ -116,6 +118,7 @@ def fit_grid_detailed(
     max_obstacle_width: float = 40.0,
     positions: np.ndarray | None = None,
     ground_layer: bool = True,
+    range_noise: RangeNoise | None = None,
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -144,6 +147,11 @@ def fit_grid_detailed(
         the cells that hold terrain under an object their ground layer as sample
         (:func:`o3d_terrain.ground_layer.ground_layer_samples`).
     ground_layer: (robust) use the ground-layer samples when ``positions`` are given.
+    range_noise: (robust, with ``positions``) the sensor's range-dependent noise
+        (:class:`o3d_terrain.noise.RangeNoise`, e.g. a stereo rig's): from the second layout
+        on, eq. 1 samples discount only the spread the noise does not explain and cells of
+        pure noise add their sample's noise to the weights' noise scale
+        (:class:`o3d_terrain.noise.GridNoise`); None = one noise scale for the whole grid.
     """
     problems = []
     if method not in METHODS:
@@ -190,6 +198,9 @@ def fit_grid_detailed(
         layer = default_layer(grid.cell_size, noise_floor=noise_floor,
                               max_slope_deg=max_slope_deg)
         samples, _ = ground_layer_samples(grid, positions, layer=layer)
+    grid_noise = None
+    if range_noise is not None and positions is not None and method == "robust":
+        grid_noise = GridNoise(grid, positions, range_noise, samples)
     z = np.where(valid, samples - z0, 0.0)
     if method == "paper":
         fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
@@ -209,7 +220,7 @@ def fit_grid_detailed(
                 # the cell (0.29 rise on a plane); subtract at most the sensor's noise floor
                 z = np.where(compact, np.maximum(z, grid.mean - z0 - noise_floor), z)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
-                          smoothing, noise_floor, max_iterations, prior)
+                          smoothing, noise_floor, max_iterations, prior, grid_noise, z0)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
     surface = TerrainSurface(degree, basis.knots_x, basis.knots_y, q, r, origin)
     return TerrainFit(surface, records, weights, np.where(valid, samples + z0, np.nan),
@@ -362,7 +373,7 @@ def _layouts(n_max, degree):
 
 
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
-                noise_floor, max_iterations, prior=None):
+                noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0):
     above_k = 2.5  # threshold above the surface, in noise scales
     below_k = 6.0  # threshold below the surface (low outliers), in noise scales
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
@@ -386,7 +397,11 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     equalized = np.zeros(z.shape, bool)
     iteration = 0
     noise = noise_floor
+    cell_sigma = None
     for level, n in enumerate(layouts):
+        if grid_noise is not None and level > 0:
+            # the sensor's noise under the surface of the previous layout: samples and scales
+            z, cell_sigma = _noise_update(grid_noise, basis.evaluate(q, r), z, z0, measured)
         basis = GridBasis(xl, yl, n, degree, region_local)
         coverage = _project(basis, valid_values, valid_cells)  # remap denominator, per layout
         final = level == len(layouts) - 1
@@ -404,10 +419,16 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             th_above = above_k * noise
             w_next = weight_buffers[iteration % 2]
             p_next = sample_buffers[iteration % 2]
-            moved, change = _tk.robust_pass(
-                z, s, base, valid_cells, compact, use_prior, prior_spread, th_above,
-                below_k * noise, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
-                equalized)
+            if cell_sigma is None:
+                moved, change = _tk.robust_pass(
+                    z, s, base, valid_cells, compact, use_prior, prior_spread, th_above,
+                    below_k * noise, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
+                    equalized)
+            else:  # per-cell thresholds from the sensor's noise model
+                moved, change = _nk.robust_pass_cells(
+                    z, s, base, valid_cells, compact, use_prior, prior_spread, noise,
+                    cell_sigma, above_k, below_k, clip_k, p, previous_w, k > 0, w_next, ratios,
+                    p_next, equalized)
             have_ratios = True
             w, p = w_next, p_next
             records.append(IterationRecord(n, mean_error, th_above, moved))
@@ -423,6 +444,14 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     s = basis_final.evaluate_cells(q, rr, valid_cells, surface)
     outliers = valid & (z - s > above_k * noise)
     return q, rr, basis_final, w, p, equalized, outliers, records, noise
+
+
+def _noise_update(grid_noise, surface, z, z0, measured):
+    """Samples (relative to z0) and per-cell noise scales of the samples for the surface
+    values ``surface`` (:meth:`o3d_terrain.noise.GridNoise.update`); a sample is only raised
+    (compact-cell and ground-layer samples are kept where higher)."""
+    samples, sigma = grid_noise.update(surface + z0)
+    return np.where(measured, np.maximum(z, samples - z0), z), sigma
 
 
 def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis,

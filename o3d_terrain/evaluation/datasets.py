@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -43,6 +43,11 @@ LAS_GROUND = (2,)
 LAS_IGNORED = (0, 7, 18)
 LAS_OBSTACLE = (4, 5, 6, 14, 15, 17)
 
+#: the synthetic stereo rig as its user knows it from calibration (``sample_stereo``'s
+#: defaults): focal length 0.8 x 320 px, baseline 0.3 m, disparity noise 0.25 px; clouds are in
+#: the left camera's frame, so the camera is at the origin
+SYNTHETIC_STEREO_RIG = {"focal_px": 0.8 * 320, "baseline": 0.3, "disparity_noise_px": 0.25}
+
 #: frame kinds: how the points were captured (some peers need to know, e.g. Patchwork++)
 KINDS = ("vehicle_lidar", "aerial", "stereo")
 
@@ -61,6 +66,7 @@ class LabelledFrame:
     source: str = ""
     metres_per_unit: float = 1.0
     sensor_height: float | None = None  # sensor height above the ground (m) when known
+    range_noise: Any = None  # the sensor's o3d_terrain.noise.RangeNoise when known (stereo)
     notes: tuple[str, ...] = field(default=())
 
     def __post_init__(self):
@@ -248,9 +254,17 @@ def synthetic_frames(names: Sequence[str], *, seed: int = 0, sensor: str = "lida
                 kind="vehicle_lidar" if sensor == "lidar" else "stereo",
                 source=f"synthetic:{name}:seed={seed}",
                 sensor_height=_sensor_height(cloud),
+                range_noise=_stereo_noise() if sensor == "stereo" else None,
             )
         except Exception as exc:  # report the scene and keep going
             yield FrameFailure(f"{name}-{sensor}", f"synthetic:{name}", f"{type(exc).__name__}: {exc}")
+
+
+def _stereo_noise():
+    """The noise model of :data:`SYNTHETIC_STEREO_RIG` (what a user gives for such a rig)."""
+    from ..noise import RangeNoise
+
+    return RangeNoise.from_stereo(**SYNTHETIC_STEREO_RIG)
 
 
 def _sensor_height(cloud) -> float | None:

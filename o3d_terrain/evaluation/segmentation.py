@@ -140,19 +140,22 @@ def _finite(obj: Any) -> Any:
 
 
 def ours(**options: Any) -> Method:
-    """Our ``segment_terrain`` as a method (keyword options are passed through)."""
+    """Our ``segment_terrain`` as a method (keyword options are passed through; a frame's
+    sensor noise model is passed as ``range_noise`` unless the options give one)."""
     try:
         from ..api import segment_terrain
     except ImportError as exc:
         raise InputError(f"o3d_terrain.api.segment_terrain is not available in this build ({exc})") from exc
 
-    def segment(positions: np.ndarray) -> np.ndarray:
-        _, inliers = segment_terrain(positions, **options)
+    def segment(positions: np.ndarray, range_noise: Any = None) -> np.ndarray:
+        given = {} if range_noise is None else {"range_noise": range_noise}
+        _, inliers = segment_terrain(positions, **{**given, **options})
         mask = np.zeros(len(positions), dtype=bool)
         mask[np.asarray(inliers, dtype=np.int64)] = True
         return mask
 
     segment.__name__ = OURS
+    segment.takes_range_noise = True  # evaluate_frame passes a frame's sensor noise model
     return segment
 
 
@@ -180,7 +183,10 @@ def resolve_method(name: str, *, kind: str = "vehicle_lidar", sensor_height: flo
 def evaluate_frame(method: Method, frame: LabelledFrame) -> FrameResult:
     """Run ``method`` on one frame and score it (raises on a bad method output)."""
     start = time.perf_counter()
-    predicted = method(frame.positions)
+    if frame.range_noise is not None and getattr(method, "takes_range_noise", False):
+        predicted = method(frame.positions, range_noise=frame.range_noise)  # e.g. stereo
+    else:
+        predicted = method(frame.positions)
     seconds = time.perf_counter() - start
     predicted = np.asarray(predicted)
     if predicted.shape != (len(frame),) or predicted.dtype != bool:

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid
+from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..segment import TerrainLabel, segment_points
 from ..terrain import METHODS, TerrainFit, fit_grid_detailed
@@ -69,6 +70,15 @@ class RationalBSplineTerrain(Stage):
              "eq. 1's lifted sample (o3d_terrain.ground_layer)",
     )
 
+    range_noise: float = option(
+        0.0, unit="1/m", rule=NON_NEGATIVE,
+        help="range-dependent sensor noise: noise along the viewing ray = range_noise * "
+             "range^2 (stereo: disparity noise px / (focal px * baseline m)); 0 = use the "
+             "frame's 'range_noise' product when a source made one (StereoToCloud with "
+             "disparity_noise_px), else one noise scale for all cells (o3d_terrain.noise)")
+    sensor_origin: tuple = option((0.0, 0.0, 0.0), kind=float, length=3, unit="m",
+                                  help="range_noise: sensor position in cloud coordinates")
+
     def check_options(self) -> list[str]:
         if self.control_points is not None and min(self.control_points) < self.degree + 1:
             return [f"control_points {self.control_points} must be >= degree + 1 = "
@@ -76,12 +86,18 @@ class RationalBSplineTerrain(Stage):
         return []
 
     def run(self, frame: Frame) -> Frame:
-        fit = self.fit(frame.product("grid"), frame.positions)
+        fit = self.fit(frame.product("grid"), frame.positions,
+                       frame.products.get("range_noise"))
         return frame.with_products(surface=fit.surface, terrain_fit=fit)
 
-    def fit(self, grid: HeightGrid, positions: np.ndarray | None = None) -> TerrainFit:
+    def fit(self, grid: HeightGrid, positions: np.ndarray | None = None,
+            range_noise: RangeNoise | None = None) -> TerrainFit:
         """The fit of :meth:`run` on a height grid; ``positions`` (the points the grid was
-        made from) give the ground-layer samples. The surface carries the grid's cell size."""
+        made from) give the ground-layer samples and, with a noise model (this stage's
+        ``range_noise`` option, else ``range_noise``), the per-cell noise. The surface carries
+        the grid's cell size."""
+        if self.range_noise > 0:
+            range_noise = RangeNoise(self.sensor_origin, self.range_noise)
         fit = fit_grid_detailed(
             grid, control_points=self.control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
@@ -89,7 +105,7 @@ class RationalBSplineTerrain(Stage):
             max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
             max_obstacle_width=self.max_obstacle_width,
             positions=positions if self.ground_layer else None,
-            ground_layer=self.ground_layer,
+            ground_layer=self.ground_layer, range_noise=range_noise,
         )
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         return dataclasses.replace(fit, surface=surface)

@@ -18,6 +18,7 @@ import open3d as o3d
 
 from ..errors import InputError
 from ..frame import Frame, cloud_from_numpy
+from ..noise import RangeNoise
 from ..options import Range, component, option
 from .calibration import StereoCalibration
 from .disparity import SETTINGS, StereoMatch, StereoMatching
@@ -141,6 +142,12 @@ class StereoCloud(StereoMatching):
         0.0, rule=Range(-90, 90), unit="deg",
         help="camera roll in the vehicle frame, positive = left side up (about the forward axis)")
     keep_colors: bool = option(True, help="store the left image's pixel colours as 'colors'")
+    disparity_noise_px: float = option(
+        None, kind=float, rule=Range(0, None, low_open=True), nullable=True, unit="px",
+        help="disparity noise (standard deviation, px at the matching resolution): the frame "
+             "gets the product 'range_noise' (o3d_terrain.noise.RangeNoise: noise along the "
+             "ray = range^2 * this / (focal * baseline), from the camera's position), which "
+             "RationalBSplineTerrain uses; null = no noise model")
 
     def check_options(self) -> list[str]:
         problems = []
@@ -198,6 +205,11 @@ class StereoCloud(StereoMatching):
         cloud = cloud_from_numpy(points, **attributes)
         frame = Frame(cloud).with_products(disparity=DisparityMap(
             match.disparity, match.left, calib, transform, match.disparity_range))
+        if self.disparity_noise_px is not None:
+            frame = frame.with_products(range_noise=RangeNoise.from_stereo(
+                focal_px=float(calib.fx), baseline=float(calib.baseline),
+                disparity_noise_px=self.disparity_noise_px,
+                sensor_origin=tuple(float(v) for v in transform[:3, 3])))
         valid_share = matched / float(h * w)
         frame = frame.with_note(
             f"stereo: {w} × {h} px matched over disparities {match.disparity_range[0]}.."
