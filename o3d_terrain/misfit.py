@@ -133,6 +133,8 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
                            ny, per_block, nbx, nby, float(high), _BIN, int(min_cells))
     local = factor * 1.4826 * scales
     local = np.where(local >= significant * threshold, np.minimum(local, high), threshold)
+    if not (local > threshold).any():  # the usual case where the surface follows the terrain
+        return out
     bx = np.clip(((x[finite] - x_min) / (cell * per_block)).astype(np.int64), 0, nbx - 1)
     by = np.clip(((y[finite] - y_min) / (cell * per_block)).astype(np.int64), 0, nby - 1)
     out[finite] = local[bx * nby + by]

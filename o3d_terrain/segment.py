@@ -120,7 +120,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
             local = misfit_thresholds(p, h, threshold, block=block_size(surface))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
-    if local is not None:
+    if local is not None and local.max(initial=threshold) > threshold:
         widen_labels(labels, h, local)
     return labels, h
 
