@@ -17,7 +17,9 @@ grows with the number of points in the cell). When that scale gives a
 threshold at least :data:`MISFIT_SIGNIFICANT` times the global one (the median of 20 or more
 cells is then well beyond its own sampling error), the block's points get that threshold,
 at most :data:`MISFIT_HIGH`, on both sides of the surface (terrain the surface undercuts on a
-ridge and terrain below it in a gully); elsewhere the global threshold is unchanged.
+ridge and terrain below it in a gully), and so do its 8 neighbouring blocks: a surface that
+bridges a gully also undercuts the ridges beside it, whose cells are all above the surface and
+so never measure a misfit themselves. Elsewhere the global threshold is unchanged.
 """
 
 from __future__ import annotations
@@ -95,6 +97,17 @@ def _block_scales(x, y, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby, deep
     return out
 
 
+def _dilate(a: np.ndarray) -> np.ndarray:
+    """Maximum over each entry's 3 x 3 neighbourhood (edges replicated)."""
+    p = np.pad(a, 1, mode="edge")
+    out = a.copy()
+    n0, n1 = a.shape
+    for i in range(3):
+        for j in range(3):
+            np.maximum(out, p[i:i + n0, j:j + n1], out=out)
+    return out
+
+
 def block_size(surface) -> float:
     """:data:`MISFIT_BLOCK` control spacings of a TerrainSurface (m, the larger axis)."""
     spacing = 0.0
@@ -113,7 +126,8 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     Per block of side ``block`` (m): s = 1.4826 x the median depth of the ``cell`` x ``cell``
     cells whose mean height (``heights`` are z - S; points higher than ``high`` left out) is
     below the surface, t = factor x s; where t >= significant x threshold and at least ``min_cells``
-    cells count, the block's points get min(t, high), elsewhere ``threshold``."""
+    cells count, the points of the block and of its 8 neighbours get min(t, high) (the largest
+    such), elsewhere ``threshold``."""
     p = np.asarray(positions, dtype=np.float64)
     h = np.ascontiguousarray(heights, dtype=np.float64)
     out = np.full(len(p), float(threshold))
@@ -135,6 +149,9 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     local = np.where(local >= significant * threshold, np.minimum(local, high), threshold)
     if not (local > threshold).any():  # the usual case where the surface follows the terrain
         return out
+    # a surface that bridges a gully undercuts the ridges beside it: the neighbouring blocks
+    # (within one block, i.e. two control spacings) get the widened threshold too
+    local = _dilate(local.reshape(nbx, nby)).ravel()
     bx = np.clip(((x[finite] - x_min) / (cell * per_block)).astype(np.int64), 0, nbx - 1)
     by = np.clip(((y[finite] - y_min) / (cell * per_block)).astype(np.int64), 0, nby - 1)
     out[finite] = local[bx * nby + by]
