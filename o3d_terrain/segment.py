@@ -121,15 +121,19 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:
-        widen_labels(labels, h, local)
+        widen_labels(labels, h, local, threshold)
     return labels, h
 
 
-def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray) -> None:
-    """In place: OBSTACLE points with h <= local and BELOW_TERRAIN points with h >= -local
-    become TERRAIN (``local``: per-point thresholds, at least the one the labels used)."""
-    labels[(labels == TerrainLabel.OBSTACLE) & (heights <= local)] = TerrainLabel.TERRAIN
-    labels[(labels == TerrainLabel.BELOW_TERRAIN) & (heights >= -local)] = TerrainLabel.TERRAIN
+def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,
+                 threshold: float) -> None:
+    """In place, at the points whose threshold ``local`` is wider than the global
+    ``threshold`` the labels used: OBSTACLE points with h <= local and BELOW_TERRAIN points
+    with h >= -local become TERRAIN."""
+    wide = local > threshold
+    labels[wide & (labels == TerrainLabel.OBSTACLE) & (heights <= local)] = TerrainLabel.TERRAIN
+    labels[wide & (labels == TerrainLabel.BELOW_TERRAIN)
+           & (heights >= -local)] = TerrainLabel.TERRAIN
 
 
 def label_heights(heights: np.ndarray, positions, *, threshold: float, below_threshold: float,

@@ -5,6 +5,7 @@ import numpy as np
 
 from o3d_terrain.api import segment_terrain
 from o3d_terrain.misfit import MISFIT_HIGH, misfit_thresholds
+from o3d_terrain.segment import TerrainLabel, widen_labels
 
 
 def _flat_with_obstacles(rng):
@@ -55,3 +56,12 @@ def test_gullies_the_surface_bridges_widen_the_threshold(rng):
     assert r_with > 0.95
     # the blocks (2.5 m, above the widest threshold) stay obstacles
     assert 2.5 > MISFIT_HIGH and fp_with == 0 == fp_without
+
+
+def test_widen_labels_changes_only_the_widened_points():
+    heights = np.array([0.3, 0.3, -0.3, -0.3, 2.0, -2.0])
+    local = np.array([0.2, 1.0, 0.2, 1.0, 1.5, 1.5])
+    O, B, T = TerrainLabel.OBSTACLE, TerrainLabel.BELOW_TERRAIN, TerrainLabel.TERRAIN
+    labels = np.array([O, O, B, B, O, B], np.uint8)  # as if below_threshold were 0.1
+    widen_labels(labels, heights, local, 0.2)
+    np.testing.assert_array_equal(labels, [O, T, B, T, O, B])
