@@ -188,15 +188,18 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     below_threshold: float = 0.5, range_coefficient: float = 0.0,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
                     smoothing: float = 0.05, terrain_prior: bool = True,
-                    range_noise: RangeNoise | float | None = None
+                    range_noise: RangeNoise | float | None = None,
+                    misfit_threshold: bool = True
                     ) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
     range_coefficient * r^2 (r: horizontal range from ``sensor_origin``).
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
-    just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`). Other options
-    as in :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``).
+    just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`), widened with
+    ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
+    (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). Other options as in
+    :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
@@ -205,7 +208,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     except (TypeError, ValueError):
         raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
-                       range_coefficient=range_coefficient, sensor_origin=origin)
+                       range_coefficient=range_coefficient, sensor_origin=origin,
+                       misfit_threshold=misfit_threshold)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,

@@ -22,7 +22,7 @@ from .errors import InputError
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds",
-           "auto_threshold", "label_heights"]
+           "auto_threshold", "label_heights", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m
 AUTO_THRESHOLD_FACTOR = 3.5
@@ -88,7 +88,8 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
 
 def segment_points(surface: TerrainSurface, positions, *, threshold: float | None = 0.2,
                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
-                   sensor_origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+                   sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -97,6 +98,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     range_coefficient: growth of the threshold with horizontal range squared (1/m), for
         stereo clouds; 0 = constant threshold.
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates).
+    misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
+        local misfit to the ground exceeds the noise (:mod:`o3d_terrain.misfit`).
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -109,10 +112,28 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         raise InputError("segment_points: " + "; ".join(problems))
     p = _positions(positions)
     h = heights_above_terrain(surface, p)
+    local = None
     if threshold is None:
         threshold = auto_threshold(h)
-    return label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
-                         range_coefficient=range_coefficient, sensor_origin=sensor_origin), h
+        if misfit and isinstance(surface, TerrainSurface):
+            from .misfit import block_size, misfit_thresholds
+            local = misfit_thresholds(p, h, threshold, block=block_size(surface))
+    labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
+                           range_coefficient=range_coefficient, sensor_origin=sensor_origin)
+    if local is not None and local.max(initial=threshold) > threshold:
+        widen_labels(labels, h, local, threshold)
+    return labels, h
+
+
+def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,
+                 threshold: float) -> None:
+    """In place, at the points whose threshold ``local`` is wider than the global
+    ``threshold`` the labels used: OBSTACLE points with h <= local and BELOW_TERRAIN points
+    with h >= -local become TERRAIN."""
+    wide = local > threshold
+    labels[wide & (labels == TerrainLabel.OBSTACLE) & (heights <= local)] = TerrainLabel.TERRAIN
+    labels[wide & (labels == TerrainLabel.BELOW_TERRAIN)
+           & (heights >= -local)] = TerrainLabel.TERRAIN
 
 
 def label_heights(heights: np.ndarray, positions, *, threshold: float, below_threshold: float,

@@ -158,6 +158,12 @@ class Segmenter(Stage):
                                       help="threshold growth per squared metre of range")
     sensor_origin: tuple = option((0.0, 0.0, 0.0), kind=float, length=3, unit="m",
                                   help="sensor position for the range, in cloud coordinates")
+    misfit_threshold: bool = option(
+        True,
+        help="with threshold null: where 1 m cells lie below the surface by more than the "
+             "noise (terrain the control spacing cannot follow), widen the threshold there, "
+             "both sides, up to 1.5 m (o3d_terrain.misfit)",
+    )
 
     def run(self, frame: Frame) -> Frame:
         labels, heights = self.label(frame.product("surface"), frame.positions)
@@ -176,4 +182,5 @@ class Segmenter(Stage):
         return segment_points(surface, positions, threshold=self.threshold,
                               below_threshold=self.below_threshold,
                               range_coefficient=self.range_coefficient,
-                              sensor_origin=self.sensor_origin)
+                              sensor_origin=self.sensor_origin,
+                              misfit=self.misfit_threshold)

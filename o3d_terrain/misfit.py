@@ -1,0 +1,158 @@
+"""Local misfit of the terrain surface, for the automatic obstacle threshold.
+
+The automatic threshold (:func:`o3d_terrain.segment.auto_threshold`) is 3.5 times the robust
+spread of the points below the surface over the whole cloud: the sensor's noise where the
+surface follows the terrain. Where it cannot (ridges and gullies narrower than the control
+spacing on steep, sparse scans; docs/algorithm.md, LAS section) the terrain departs from the
+surface by more than that noise, on both sides of it, over areas of about a control spacing.
+
+The ground there is sampled by the mean height above the surface of the points of each
+:data:`MISFIT_CELL` cell (points higher than :data:`MISFIT_HIGH` left out). Per block of
+:data:`MISFIT_BLOCK` control spacings, the misfit scale is 1.4826 times the median depth of the
+cells whose mean lies *below* the surface (obstacles never do, so low vegetation or cars
+covering a block do not raise it; a gully the surface bridges does). The mean of a cell of
+pure noise spreads less than its points do, so on terrain the surface follows the scale stays
+below the global one whatever the density (the lowest point of a cell would not: its depth
+grows with the number of points in the cell). When that scale gives a
+threshold at least :data:`MISFIT_SIGNIFICANT` times the global one (the median of 20 or more
+cells is then well beyond its own sampling error), the block's points get that threshold,
+at most :data:`MISFIT_HIGH`, on both sides of the surface (terrain the surface undercuts on a
+ridge and terrain below it in a gully), and so do its 8 neighbouring blocks: a surface that
+bridges a gully also undercuts the ridges beside it, whose cells are all above the surface and
+so never measure a misfit themselves. Elsewhere the global threshold is unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["misfit_thresholds", "block_size", "MISFIT_FACTOR", "MISFIT_HIGH", "MISFIT_CELL",
+           "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS"]
+
+#: threshold = this many robust misfit scales (the factor of the global automatic threshold)
+MISFIT_FACTOR = 3.5
+#: the widest threshold the misfit can give (m), below a car's or a person's height
+MISFIT_HIGH = 1.5
+#: side of the cells whose mean height samples the ground (m)
+MISFIT_CELL = 1.0
+#: side of a block, in control spacings (the scale on which the surface's misfit varies)
+MISFIT_BLOCK = 2.0
+#: a block's threshold replaces the global one only when at least this many times larger
+MISFIT_SIGNIFICANT = 2.0
+#: fewest cells below the surface that measure a block's misfit
+MISFIT_MIN_CELLS = 20
+#: histogram bin of the depths (m)
+_BIN = 0.002
+
+
+@numba.njit(cache=True)
+def _block_scales(x, y, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby, deepest,
+                  bin_size, min_cells):
+    """Per block, the median depth (m) of the cells whose mean height (over their points at
+    most ``deepest`` above the surface) is below it (depths beyond ``deepest`` counted as
+    ``deepest``); NaN where fewer than ``min_cells`` cells are below."""
+    total_h = np.zeros(nx * ny)
+    count = np.zeros(nx * ny, np.int64)
+    for i in range(x.size):
+        hi = h[i]
+        if not (hi <= deepest):  # NaN or an obstacle higher than any threshold
+            continue
+        ix = int((x[i] - x_min) / cell)
+        iy = int((y[i] - y_min) / cell)
+        if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
+            continue
+        c = ix * ny + iy
+        total_h[c] += hi
+        count[c] += 1
+    low = np.full(nx * ny, np.inf)
+    for c in range(nx * ny):
+        if count[c] > 0:
+            low[c] = total_h[c] / count[c]
+    nbins = int(deepest / bin_size) + 1
+    hist = np.zeros((nbx * nby, nbins), np.int64)
+    total = np.zeros(nbx * nby, np.int64)
+    for ix in range(nx):
+        bx = ix // per_block
+        for iy in range(ny):
+            v = low[ix * ny + iy]
+            if not v <= 0.0:
+                continue
+            b = bx * nby + iy // per_block
+            hist[b, min(int(-v / bin_size), nbins - 1)] += 1
+            total[b] += 1
+    out = np.full(nbx * nby, np.nan)
+    for b in range(nbx * nby):
+        if total[b] < min_cells:
+            continue
+        half = (total[b] + 1) // 2
+        acc = 0
+        for k in range(nbins):
+            acc += hist[b, k]
+            if acc >= half:
+                out[b] = (k + 0.5) * bin_size
+                break
+    return out
+
+
+def _dilate(a: np.ndarray) -> np.ndarray:
+    """Maximum over each entry's 3 x 3 neighbourhood (edges replicated)."""
+    p = np.pad(a, 1, mode="edge")
+    out = a.copy()
+    n0, n1 = a.shape
+    for i in range(3):
+        for j in range(3):
+            np.maximum(out, p[i:i + n0, j:j + n1], out=out)
+    return out
+
+
+def block_size(surface) -> float:
+    """:data:`MISFIT_BLOCK` control spacings of a TerrainSurface (m, the larger axis)."""
+    spacing = 0.0
+    for knots in (surface.knots_x, surface.knots_y):
+        spans = max(1, knots.size - 2 * surface.degree - 1)
+        spacing = max(spacing, float(knots[-1] - knots[0]) / spans)
+    return MISFIT_BLOCK * spacing
+
+
+def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: float, *,
+                      block: float, factor: float = MISFIT_FACTOR, high: float = MISFIT_HIGH,
+                      cell: float = MISFIT_CELL, significant: float = MISFIT_SIGNIFICANT,
+                      min_cells: int = MISFIT_MIN_CELLS) -> np.ndarray:
+    """Per-point thresholds (N,), the global ``threshold`` widened by the local misfit.
+
+    Per block of side ``block`` (m): s = 1.4826 x the median depth of the ``cell`` x ``cell``
+    cells whose mean height (``heights`` are z - S; points higher than ``high`` left out) is
+    below the surface, t = factor x s; where t >= significant x threshold and at least ``min_cells``
+    cells count, the points of the block and of its 8 neighbours get min(t, high) (the largest
+    such), elsewhere ``threshold``."""
+    p = np.asarray(positions, dtype=np.float64)
+    h = np.ascontiguousarray(heights, dtype=np.float64)
+    out = np.full(len(p), float(threshold))
+    finite = np.isfinite(h) & np.isfinite(p[:, 0]) & np.isfinite(p[:, 1])
+    if not finite.any() or high <= threshold or not block > 0:
+        return out
+    x = np.ascontiguousarray(p[:, 0])
+    y = np.ascontiguousarray(p[:, 1])
+    x_min, x_max = float(x[finite].min()), float(x[finite].max())
+    y_min, y_max = float(y[finite].min()), float(y[finite].max())
+    per_block = max(1, int(round(block / cell)))
+    nx = int((x_max - x_min) / cell) + 1
+    ny = int((y_max - y_min) / cell) + 1
+    nbx = (nx + per_block - 1) // per_block
+    nby = (ny + per_block - 1) // per_block
+    scales = _block_scales(x, y, np.where(finite, h, np.nan), x_min, y_min, float(cell), nx,
+                           ny, per_block, nbx, nby, float(high), _BIN, int(min_cells))
+    local = factor * 1.4826 * scales
+    local = np.where(local >= significant * threshold, np.minimum(local, high), threshold)
+    if not (local > threshold).any():  # the usual case where the surface follows the terrain
+        return out
+    # a surface that bridges a gully undercuts the ridges beside it: the neighbouring blocks
+    # (within one block, i.e. two control spacings) get the widened threshold too
+    local = _dilate(local.reshape(nbx, nby)).ravel()
+    bx = np.clip(((x[finite] - x_min) / (cell * per_block)).astype(np.int64), 0, nbx - 1)
+    by = np.clip(((y[finite] - y_min) / (cell * per_block)).astype(np.int64), 0, nby - 1)
+    out[finite] = local[bx * nby + by]
+    return out
