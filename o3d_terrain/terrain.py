@@ -258,13 +258,12 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     measured = np.isfinite(low)
     c = float(grid.cell_size)
     step = math.tan(math.radians(max_slope_deg))
-    crossed = _ground.cone_fill(low, measured, c, math.tan(math.radians(gap_slope_deg)))
     radius = max(1, int(round(max_obstacle_width / 2 / c)))
-    seeds = measured & (low <= _ground.window_min(low, radius))
-    walls = _ground.above_slope_cone(low, c, step, float(tolerance))
-    crossed = np.where(walls, np.inf, crossed)
-    connected = measured & _ground.connected_terrain(crossed, seeds & ~walls, c, step,
-                                                      float(tolerance))
+    # cone_fill of the gaps, walls (above_slope_cone) not crossed, seeds (window_min) not on
+    # walls: in one kernel
+    crossed, seeds = _ground.prior_seeds(low, measured, c, math.tan(math.radians(gap_slope_deg)),
+                                         step, float(tolerance), radius)
+    connected = measured & _ground.connected_terrain(crossed, seeds, c, step, float(tolerance))
     # rise: the terrain's rise across one cell, what points on the terrain may span inside it.
     # Eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
     # with one or two points (mean - sigma of two values is the lower one): such a cell (one

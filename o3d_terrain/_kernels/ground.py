@@ -291,3 +291,84 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
             if dense[i, j]:
                 compact[i, j] = True
     return compact, rise
+
+
+@numba.njit(cache=True)
+def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
+    """The inputs of :func:`connected_terrain` for the terrain prior, in fewer passes:
+    (crossed, seeds) with crossed = :func:`cone_fill` (low, measured, cell_size, gap_slope)
+    set to inf on the cells flagged by :func:`above_slope_cone` (low, cell_size, slope,
+    tolerance), and seeds = measured cells, not flagged, with low <= :func:`window_min`
+    (low, radius). Both cone envelopes are swept together (the same operations per output as
+    :func:`cone_fill`, so the same values)."""
+    nx, ny = low.shape
+    gap = low.copy()  # cone_fill with measured cells fixed, gap slope
+    env = low.copy()  # cone_fill with nothing fixed, slope
+    g1 = gap_slope * cell_size
+    g2 = g1 * _SQRT2
+    s1 = slope * cell_size
+    s2 = s1 * _SQRT2
+    for i in range(nx):  # forward sweep: neighbours above and to the left
+        for j in range(ny):
+            fixed = measured[i, j]
+            v = gap[i, j]
+            e = env[i, j]
+            if i > 0:
+                v = min(v, gap[i - 1, j] + g1)
+                e = min(e, env[i - 1, j] + s1)
+                if j > 0:
+                    v = min(v, gap[i - 1, j - 1] + g2)
+                    e = min(e, env[i - 1, j - 1] + s2)
+                if j < ny - 1:
+                    v = min(v, gap[i - 1, j + 1] + g2)
+                    e = min(e, env[i - 1, j + 1] + s2)
+            if j > 0:
+                v = min(v, gap[i, j - 1] + g1)
+                e = min(e, env[i, j - 1] + s1)
+            if not fixed:
+                gap[i, j] = v
+            env[i, j] = e
+    for i in range(nx - 1, -1, -1):  # backward sweep
+        for j in range(ny - 1, -1, -1):
+            fixed = measured[i, j]
+            v = gap[i, j]
+            e = env[i, j]
+            if i < nx - 1:
+                v = min(v, gap[i + 1, j] + g1)
+                e = min(e, env[i + 1, j] + s1)
+                if j > 0:
+                    v = min(v, gap[i + 1, j - 1] + g2)
+                    e = min(e, env[i + 1, j - 1] + s2)
+                if j < ny - 1:
+                    v = min(v, gap[i + 1, j + 1] + g2)
+                    e = min(e, env[i + 1, j + 1] + s2)
+            if j < ny - 1:
+                v = min(v, gap[i, j + 1] + g1)
+                e = min(e, env[i, j + 1] + s1)
+            if not fixed:
+                gap[i, j] = v
+            env[i, j] = e
+    lowest_around = window_min(low, radius)
+    seeds = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            h = low[i, j]
+            if not np.isfinite(h):
+                continue
+            best = np.inf
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0):
+                        continue
+                    v = env[a, b] + (s1 if (di == 0 or dj == 0) else s2)
+                    if v < best:
+                        best = v
+            if h > best + tolerance:  # above the slope cone of a neighbour: a wall's top
+                gap[i, j] = np.inf
+            else:
+                seeds[i, j] = measured[i, j] and h <= lowest_around[i, j]
+    return gap, seeds
