@@ -190,24 +190,29 @@ def fit_grid_detailed(
         layer = default_layer(grid.cell_size, noise_floor=noise_floor,
                               max_slope_deg=max_slope_deg)
         samples, _ = ground_layer_samples(grid, positions, layer=layer)
-    z = np.where(valid, samples - z0, 0.0)
     if method == "paper":
+        z = np.where(valid, samples - z0, 0.0)
         fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
                          max_iterations)
     else:
-        base = np.where(measured, 1.0, np.where(grid.state == FILLED, filled_weight, 0.0))
         prior = None
+        compact = np.zeros((0, 0), bool)
         if terrain_prior:
             _, compact, rise = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
                                               max_obstacle_width, 3.0 * noise_floor)
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow)
             prior = (compact, 0.5 * rise)
-            if grid.mean is not None:
-                # all points of a compact cell are terrain: eq. 1's "- sigma" (meant to discount
-                # obstacle points) would only lower the sample by the terrain's relief inside
-                # the cell (0.29 rise on a plane); subtract at most the sensor's noise floor
-                z = np.where(compact, np.maximum(z, grid.mean - z0 - noise_floor), z)
+        # samples z - z0 (0 where invalid) and base weights (1 measured, filled_weight filled);
+        # with the prior and the grid's mean, compact cells take max(z, mean - noise_floor):
+        # all points of a compact cell are terrain, and eq. 1's "- sigma" (meant to discount
+        # obstacle points) would only lower the sample by the terrain's relief inside the cell
+        # (0.29 rise on a plane); subtract at most the sensor's noise floor
+        use_mean = terrain_prior and grid.mean is not None
+        z, base = _tk.robust_inputs(
+            grid.state, np.ascontiguousarray(samples, dtype=np.float64),
+            grid.mean if use_mean else np.zeros((0, 0)), compact if use_mean else
+            np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
                           smoothing, noise_floor, max_iterations, prior)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit

@@ -926,3 +926,21 @@ def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, ma
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
             out[i, j] = acc_n / acc_d if rational else acc_n
     return out
+
+
+@numba.njit(cache=True)
+def below_surface_median(heights, step, high):
+    """(median of -h, count) over every ``step``-th height h with -high < h <= 0 (the terrain
+    noise below the surface, :func:`o3d_terrain.segment.auto_threshold`); median NaN when
+    there is none. np.median selects exactly, so it is the value numpy.median gives."""
+    n = (heights.shape[0] + step - 1) // step
+    gathered = np.empty(n)
+    count = 0
+    for k in range(n):
+        h = heights[k * step]
+        if h <= 0.0 and h > -high:
+            gathered[count] = -h
+            count += 1
+    if count == 0:
+        return np.nan, 0
+    return np.median(gathered[:count]), count
