@@ -98,47 +98,27 @@ def cone_fill(height, measured, cell_size, gap_slope):
 
 
 @numba.njit(cache=True)
-def window_min(values, radius):
-    """Minimum over the (2 radius + 1)^2 square window around every cell (clipped at the
-    borders). Separable van Herk / Gil-Werman: per axis, block prefix and suffix minima over
-    blocks of w = 2 radius + 1 cells; the window [lo, hi] of a cell spans the suffix of lo's
-    block and the prefix of hi's, or, within one block (a window clipped at a border), starts
-    at the block's start or ends at the array's end. O(cells) whatever the radius; both
-    passes run along rows (contiguous)."""
+def _window_min_axis0(values, radius):
+    """Minimum over [i - radius, i + radius] (clipped) along axis 0 of every column: van Herk /
+    Gil-Werman block prefix and suffix minima over blocks of w = 2 radius + 1 rows; the window
+    [lo, hi] of row i spans the suffix of lo's block and the prefix of hi's, or, within one
+    block (a window clipped at a border), starts at the block's start or ends at the array's
+    end. Every step processes whole rows (contiguous, vectorised)."""
     nx, ny = values.shape
     w = 2 * radius + 1
     prefix = np.empty((nx, ny))
     suffix = np.empty((nx, ny))
-    rows = np.empty((nx, ny))
-    for i in range(nx):  # along y, row by row
-        for start in range(0, ny, w):
-            stop = min(start + w, ny)
-            prefix[i, start] = values[i, start]
-            for k in range(start + 1, stop):
-                prefix[i, k] = min(prefix[i, k - 1], values[i, k])
-            suffix[i, stop - 1] = values[i, stop - 1]
-            for k in range(stop - 2, start - 1, -1):
-                suffix[i, k] = min(suffix[i, k + 1], values[i, k])
-        for j in range(ny):
-            lo = max(j - radius, 0)
-            hi = min(j + radius, ny - 1)
-            if lo // w != hi // w:
-                rows[i, j] = min(suffix[i, lo], prefix[i, hi])
-            elif lo % w == 0:
-                rows[i, j] = prefix[i, hi]
-            else:
-                rows[i, j] = suffix[i, lo]
-    for start in range(0, nx, w):  # along x, whole rows at a time
+    for start in range(0, nx, w):
         stop = min(start + w, nx)
         for j in range(ny):
-            prefix[start, j] = rows[start, j]
-            suffix[stop - 1, j] = rows[stop - 1, j]
+            prefix[start, j] = values[start, j]
+            suffix[stop - 1, j] = values[stop - 1, j]
         for k in range(start + 1, stop):
             for j in range(ny):
-                prefix[k, j] = min(prefix[k - 1, j], rows[k, j])
+                prefix[k, j] = min(prefix[k - 1, j], values[k, j])
         for k in range(stop - 2, start - 1, -1):
             for j in range(ny):
-                suffix[k, j] = min(suffix[k + 1, j], rows[k, j])
+                suffix[k, j] = min(suffix[k + 1, j], values[k, j])
     out = np.empty((nx, ny))
     for i in range(nx):
         lo = max(i - radius, 0)
@@ -153,6 +133,17 @@ def window_min(values, radius):
             for j in range(ny):
                 out[i, j] = suffix[lo, j]
     return out
+
+
+@numba.njit(cache=True)
+def window_min(values, radius):
+    """Minimum over the (2 radius + 1)^2 square window around every cell (clipped at the
+    borders). Separable (:func:`_window_min_axis0` along x, then along y on the transposed
+    array, whose rows are contiguous): O(cells) whatever the radius. A minimum is exact in
+    any order, so this is the plain window minimum."""
+    along_x = _window_min_axis0(values, radius)
+    return np.ascontiguousarray(
+        _window_min_axis0(np.ascontiguousarray(along_x.T), radius).T)
 
 
 @numba.njit(cache=True)
