@@ -152,7 +152,10 @@ def quantize_points(
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
     cells = _grid.cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny)
-    layer = float(layer) if layer and math.isfinite(layer) and layer > 0 else 0.0
+    if not (isinstance(layer, (int, float, np.integer, np.floating)) and math.isfinite(layer)
+            and layer >= 0):
+        raise InputError(f"layer must be a finite number of metres >= 0, got {layer!r}")
+    layer = float(layer)
     height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum = \
         _grid.quantize(cells, z, nx, ny, min_points, fill_empty, layer)
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,

@@ -128,6 +128,8 @@ def test_statistics_of_the_grid_pass_give_the_same_samples(rng):
     assert expected[1].sum() > 50
     for got, want in zip(ground_layer_samples(gathered, cloud, layer=layer), expected):
         np.testing.assert_array_equal(got, want)
+    with pytest.raises(InputError, match="layer"):
+        quantize_points(cloud, cell_size=0.5, layer=-0.1)
     # another thickness falls back to the pass over the points
     for got, want in zip(ground_layer_samples(gathered, cloud, layer=0.5),
                          ground_layer_samples(plain, cloud, layer=0.5)):
