@@ -154,22 +154,23 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
     mask over all cells (measured and crossed empty cells)."""
     nx, ny = height.shape
     accepted = np.zeros((nx, ny), np.bool_)
-    queue = np.empty(nx * ny, np.int64)
+    queue_i = np.empty(nx * ny, np.int32)  # row and column apart: no division per cell
+    queue_j = np.empty(nx * ny, np.int32)
     head = 0
     tail = 0
     for i in range(nx):
         for j in range(ny):
             if seeds[i, j] and np.isfinite(height[i, j]):
                 accepted[i, j] = True
-                queue[tail] = i * ny + j
+                queue_i[tail] = i
+                queue_j[tail] = j
                 tail += 1
     straight = step_slope * cell_size + tolerance
     diagonal = step_slope * cell_size * _SQRT2 + tolerance
     while head < tail:
-        k = queue[head]
+        i = queue_i[head]
+        j = queue_j[head]
         head += 1
-        i = k // ny
-        j = k - i * ny
         h = height[i, j]
         for di in range(-1, 2):
             a = i + di
@@ -183,7 +184,8 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
                 hn = height[a, b]
                 if hn <= h + limit:
                     accepted[a, b] = True
-                    queue[tail] = a * ny + b
+                    queue_i[tail] = a
+                    queue_j[tail] = b
                     tail += 1
     return accepted
 
