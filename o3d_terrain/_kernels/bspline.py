@@ -673,6 +673,18 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
             for b in range(b_lo, b_hi + 1):
                 rhs[row1 + b] += xa1 * r[b]
             f = xa1 * xa1
+            if p == 3:  # the two loops below with constant lengths (unrolled; same operations)
+                for b in range(b_lo, b_hi + 1):
+                    for d in range(4):
+                        lower[row1 + b, d] += f * tf[b, 3 + d]
+                for a2 in range(a1 + 1, 4):
+                    f = xa1 * basis_x[i, a2]
+                    off = (a2 - a1) * n1 - 3
+                    for b1 in range(b_lo, b_hi + 1):
+                        k1 = row1 + b1
+                        for e in range(7):
+                            lower[k1, off + e] += f * tf[b1, e]
+                continue
             for b in range(b_lo, b_hi + 1):
                 for d in range(p + 1):
                     lower[row1 + b, d] += f * tf[b, p + d]
