@@ -743,6 +743,25 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
         first = i * m1
         end = first + m1
         sx = spans_x[i] - p
+        if p == 3 and rational:  # the loop below with a constant length (same operations)
+            x0 = basis_x[i, 0]
+            x1 = basis_x[i, 1]
+            x2 = basis_x[i, 2]
+            x3 = basis_x[i, 3]
+            while k < count and cells[k] < end:
+                c = cells[k]
+                k += 1
+                j = c - first
+                acc_n = 0.0 + x0 * col_n[j, sx]
+                acc_d = 0.0 + x0 * col_d[j, sx]
+                acc_n += x1 * col_n[j, sx + 1]
+                acc_d += x1 * col_d[j, sx + 1]
+                acc_n += x2 * col_n[j, sx + 2]
+                acc_d += x2 * col_d[j, sx + 2]
+                acc_n += x3 * col_n[j, sx + 3]
+                acc_d += x3 * col_d[j, sx + 3]
+                of[c] = acc_n / acc_d
+            continue
         while k < count and cells[k] < end:
             c = cells[k]
             k += 1

@@ -182,6 +182,10 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
                 lo = sy
             if sy > hi:
                 hi = sy
+            if p == 3:  # the loop below with a constant length (same operations)
+                for b in range(4):
+                    row[sy + b] += v * basis_y[j, b]
+                continue
             for b in range(p + 1):
                 row[sy + b] += v * basis_y[j, b]
         if hi < 0:
