@@ -662,11 +662,18 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
         # the full symmetric band of T_i: tf[b, p + e] = T_i[b, b + e], e = -p .. p (zero
         # outside rows b_lo .. b_hi, so fixed-length loops add only zeros beyond them: each
         # entry of ``lower`` is updated once per grid row, the same sums as entry by entry)
-        for b in range(b_lo, b_hi + 1):
-            for d in range(p + 1):
-                tf[b, p + d] = t[b, d]
-                if b + d < n1:
-                    tf[b + d, p - d] = t[b, d]
+        if p == 3:  # the loop below with a constant length (same assignments)
+            for b in range(b_lo, b_hi + 1):
+                for d in range(4):
+                    tf[b, 3 + d] = t[b, d]
+                    if b + d < n1:
+                        tf[b + d, 3 - d] = t[b, d]
+        else:
+            for b in range(b_lo, b_hi + 1):
+                for d in range(p + 1):
+                    tf[b, p + d] = t[b, d]
+                    if b + d < n1:
+                        tf[b + d, p - d] = t[b, d]
         for a1 in range(p + 1):
             row1 = (sx - p + a1) * n1
             xa1 = basis_x[i, a1]
@@ -697,10 +704,8 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                         lower[k1, off + e] += f * tf[b1, e]
         for b in range(b_lo, b_hi + 1):
             r[b] = 0.0
-            for d in range(p + 1):
-                t[b, d] = 0.0
-            for e in range(2 * p + 1):
-                tf[b, e] = 0.0
+            t[b, :] = 0.0
+            tf[b, :] = 0.0
     if rational:  # A -> diag(R) A diag(R), rhs -> R rhs (the rational basis R N_a N_b / D)
         rw = rational_weights.ravel()
         for k in range(size):
