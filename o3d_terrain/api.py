@@ -17,6 +17,7 @@ import numpy as np
 from .errors import ConfigError, InputError
 from .frame import LABELS, Frame, as_frame
 from .grid import quantize_points, region_of
+from .ground_layer import default_layer
 from .noise import RangeNoise
 from .segment import TerrainLabel
 from .segment import auto_threshold as _auto_threshold
@@ -137,9 +138,13 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
     """What ``terrain(quantize(frame))`` computes, on an array without a frame: the same
     functions with the stages' options (the grid covers the extent computed once)."""
     extent = _checked_region(positions, quantize.region)
+    # the ground-layer statistics of the fit are gathered in the grid's pass over the points
+    layer = default_layer(quantize.cell_size, noise_floor=terrain.noise_floor,
+                          max_slope_deg=terrain.max_slope_deg) \
+        if terrain.ground_layer and terrain.method == "robust" else 0.0
     grid = quantize._guard(lambda: quantize_points(
         positions, cell_size=quantize.cell_size, region=extent,
-        min_points=quantize.min_points, fill_empty=quantize.fill_empty))
+        min_points=quantize.min_points, fill_empty=quantize.fill_empty, layer=layer))
     return terrain._guard(lambda: terrain.fit(grid, positions)).surface
 
 

@@ -6,6 +6,7 @@ Arrays are indexed ``[ix, iy]`` (x first, shape ``(nx, ny)``), like the spline's
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,11 @@ class HeightGrid:
     mean: np.ndarray | None = None  # (nx, ny) mean z per cell (0 where empty)
     skipped_nonfinite: int = 0  # points skipped for a NaN or infinite coordinate
     skipped_outside: int = 0  # finite points outside the grid's region
+    # ground-layer statistics (o3d_terrain.ground_layer) for the thickness ``layer`` (m):
+    # number and sum of the z values within [lowest, lowest + layer] per cell
+    layer: float = 0.0
+    layer_count: np.ndarray | None = None
+    layer_sum: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -117,8 +123,11 @@ def quantize_points(
     region: tuple[float, float, float, float] | None = None,
     min_points: int = 1,
     fill_empty: bool = True,
+    layer: float = 0.0,
 ) -> HeightGrid:
-    """Quantize points into a :class:`HeightGrid` (eq. 1). Non-finite points are skipped."""
+    """Quantize points into a :class:`HeightGrid` (eq. 1). Non-finite points are skipped.
+    ``layer`` > 0: also the ground-layer statistics for that thickness (m) in the same pass
+    (used by :func:`o3d_terrain.ground_layer.ground_layer_samples` instead of its own)."""
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise InputError(f"positions must be (N, 3), got {positions.shape}")
@@ -143,8 +152,12 @@ def quantize_points(
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
     cells = _grid.cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny)
-    height, count, state, lowest, highest, mean, nonfinite, outside = _grid.quantize(
-        cells, z, nx, ny, min_points, fill_empty
-    )
+    if not (isinstance(layer, (int, float, np.integer, np.floating)) and math.isfinite(layer)
+            and layer >= 0):
+        raise InputError(f"layer must be a finite number of metres >= 0, got {layer!r}")
+    layer = float(layer)
+    height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum = \
+        _grid.quantize(cells, z, nx, ny, min_points, fill_empty, layer)
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
-                      highest, mean, int(nonfinite), int(outside))
+                      highest, mean, int(nonfinite), int(outside), layer,
+                      layer_count if layer else None, layer_sum if layer else None)

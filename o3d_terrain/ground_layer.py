@@ -54,7 +54,8 @@ def ground_layer_samples(grid: HeightGrid, positions: np.ndarray, *,
     """(samples, replaced): the grid's samples Z with the cells that hold a ground layer under
     an object set to the mean height of that layer, and the (nx, ny) bool mask of those cells.
 
-    positions: the (N, 3) points the grid was made from (same coordinates).
+    positions: the (N, 3) points the grid was made from (same coordinates); not read when
+        the grid carries the statistics for this ``layer`` (``quantize_points(layer=...)``).
     layer: thickness above each cell's lowest point (m); None = :func:`default_layer`.
     min_fraction: share of the cell's points the layer must hold.
     """
@@ -67,6 +68,10 @@ def ground_layer_samples(grid: HeightGrid, positions: np.ndarray, *,
         raise InputError(f"layer must be a positive number of metres, got {layer!r}")
     if not (0.0 <= min_fraction <= 1.0):
         raise InputError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
+    if grid.layer_count is not None and grid.layer == layer:  # gathered by the grid's pass
+        return _gl.ground_layer_from_sums(
+            grid.z, grid.lowest, grid.count, grid.state == MEASURED, grid.layer_count,
+            grid.layer_sum, float(layer), MIN_LAYER_POINTS, float(min_fraction))
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] < 3:
         raise InputError(f"positions must be (N, 3), got {p.shape}")

@@ -78,11 +78,11 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
     absolute value) of the heights at or below the surface (terrain noise; obstacles never lie
     below it), clipped to [low, high] m. Uses every k-th point, k = max(1, N // 50,000)."""
     step = max(1, len(heights) // 50_000)
-    h = np.asarray(heights, dtype=np.float64)[::step]
-    below = h[(h <= 0) & (h > -high)]
-    if below.size < 10:
+    median, count = _bs.below_surface_median(
+        np.ascontiguousarray(heights, dtype=np.float64), step, float(high))
+    if count < 10:
         return low
-    noise = 1.4826 * float(np.median(-below))
+    noise = 1.4826 * float(median)
     return float(np.clip(factor * noise, low, high))
 
 

@@ -201,24 +201,29 @@ def fit_grid_detailed(
     grid_noise = None
     if range_noise is not None and positions is not None and method == "robust":
         grid_noise = GridNoise(grid, positions, range_noise, samples)
-    z = np.where(valid, samples - z0, 0.0)
     if method == "paper":
+        z = np.where(valid, samples - z0, 0.0)
         fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
                          max_iterations)
     else:
-        base = np.where(measured, 1.0, np.where(grid.state == FILLED, filled_weight, 0.0))
         prior = None
+        compact = np.zeros((0, 0), bool)
         if terrain_prior:
             _, compact, rise = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
                                               max_obstacle_width, 3.0 * noise_floor)
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow)
             prior = (compact, 0.5 * rise)
-            if grid.mean is not None:
-                # all points of a compact cell are terrain: eq. 1's "- sigma" (meant to discount
-                # obstacle points) would only lower the sample by the terrain's relief inside
-                # the cell (0.29 rise on a plane); subtract at most the sensor's noise floor
-                z = np.where(compact, np.maximum(z, grid.mean - z0 - noise_floor), z)
+        # samples z - z0 (0 where invalid) and base weights (1 measured, filled_weight filled);
+        # with the prior and the grid's mean, compact cells take max(z, mean - noise_floor):
+        # all points of a compact cell are terrain, and eq. 1's "- sigma" (meant to discount
+        # obstacle points) would only lower the sample by the terrain's relief inside the cell
+        # (0.29 rise on a plane); subtract at most the sensor's noise floor
+        use_mean = terrain_prior and grid.mean is not None
+        z, base = _tk.robust_inputs(
+            grid.state, np.ascontiguousarray(samples, dtype=np.float64),
+            grid.mean if use_mean else np.zeros((0, 0)), compact if use_mean else
+            np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
                           smoothing, noise_floor, max_iterations, prior, grid_noise, z0)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
@@ -269,13 +274,12 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     measured = np.isfinite(low)
     c = float(grid.cell_size)
     step = math.tan(math.radians(max_slope_deg))
-    crossed = _ground.cone_fill(low, measured, c, math.tan(math.radians(gap_slope_deg)))
     radius = max(1, int(round(max_obstacle_width / 2 / c)))
-    seeds = measured & (low <= _ground.window_min(low, radius))
-    walls = _ground.above_slope_cone(low, c, step, float(tolerance))
-    crossed = np.where(walls, np.inf, crossed)
-    connected = measured & _ground.connected_terrain(crossed, seeds & ~walls, c, step,
-                                                      float(tolerance))
+    # cone_fill of the gaps, walls (above_slope_cone) not crossed, seeds (window_min) not on
+    # walls: in one kernel
+    crossed, seeds = _ground.prior_seeds(low, measured, c, math.tan(math.radians(gap_slope_deg)),
+                                         step, float(tolerance), radius)
+    connected = measured & _ground.connected_terrain(crossed, seeds, c, step, float(tolerance))
     # rise: the terrain's rise across one cell, what points on the terrain may span inside it.
     # Eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell
     # with one or two points (mean - sigma of two values is the lower one): such a cell (one

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from o3d_terrain._kernels.ground import (below_compact_neighbours, compact_cells,
+from o3d_terrain._kernels.ground import (above_slope_cone, below_compact_neighbours,
+                                         compact_cells, cone_fill, prior_seeds,
                                          steepest_neighbour_slope, window_min)
 
 
@@ -72,3 +73,18 @@ def test_compact_cells_matches_its_definition(rng, use_highest):
     expected = dense | below_compact_neighbours(low, sparse, dense, 0.09, 2)
     assert np.array_equal(compact, expected)
     assert dense.any() and (expected & ~dense).any()  # both kinds occur
+
+
+@pytest.mark.parametrize("shape", [(23, 17), (1, 6), (6, 1), (40, 33)])
+def test_prior_seeds_equals_the_separate_kernels(rng, shape):
+    # the fused kernel of the terrain prior gives the values of cone_fill, above_slope_cone and
+    # window_min composed as terrain._terrain_prior composed them before
+    low = np.cumsum(rng.normal(0, 0.3, shape), axis=0) + rng.normal(0, 0.2, shape)
+    low[rng.uniform(size=shape) < 0.3] = np.inf
+    low[rng.uniform(size=shape) < 0.05] += 3.0  # walls
+    measured = np.isfinite(low)
+    crossed, seeds = prior_seeds(low, measured, 0.5, 0.36, 1.0, 0.09, 3)
+    walls = above_slope_cone(low, 0.5, 1.0, 0.09)
+    expected = np.where(walls, np.inf, cone_fill(low, measured, 0.5, 0.36))
+    np.testing.assert_array_equal(crossed, expected)
+    np.testing.assert_array_equal(seeds, measured & (low <= window_min(low, 3)) & ~walls)

@@ -113,3 +113,24 @@ def test_wide_tiles_keep_the_control_spacing_bounded():
     n = default_control_points(flat_grid(800))  # 400 m: an airborne tile
     assert n[0] == n[1] > 32 and 400.0 / (n[0] - 3) <= AUTO_MAX_SPACING
     assert default_control_points(flat_grid(4000)) == (96, 96)  # 2 km: the hard limit
+
+
+def test_statistics_of_the_grid_pass_give_the_same_samples(rng):
+    # quantize_points(layer=...) gathers the layer's counts and sums in its point pass; the
+    # samples equal those of the separate pass over the points
+    cloud, _, _ = _canopy_cloud(rng, size=20.0, width=12.0)
+    cloud[::97, 2] = np.nan
+    layer = default_layer(0.5)
+    plain = quantize_points(cloud, cell_size=0.5)
+    gathered = quantize_points(cloud, cell_size=0.5, layer=layer)
+    assert plain.layer_count is None and gathered.layer_count is not None
+    expected = ground_layer_samples(plain, cloud, layer=layer)
+    assert expected[1].sum() > 50
+    for got, want in zip(ground_layer_samples(gathered, cloud, layer=layer), expected):
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(InputError, match="layer"):
+        quantize_points(cloud, cell_size=0.5, layer=-0.1)
+    # another thickness falls back to the pass over the points
+    for got, want in zip(ground_layer_samples(gathered, cloud, layer=0.5),
+                         ground_layer_samples(plain, cloud, layer=0.5)):
+        np.testing.assert_array_equal(got, want)

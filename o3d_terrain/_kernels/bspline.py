@@ -662,17 +662,36 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
         # the full symmetric band of T_i: tf[b, p + e] = T_i[b, b + e], e = -p .. p (zero
         # outside rows b_lo .. b_hi, so fixed-length loops add only zeros beyond them: each
         # entry of ``lower`` is updated once per grid row, the same sums as entry by entry)
-        for b in range(b_lo, b_hi + 1):
-            for d in range(p + 1):
-                tf[b, p + d] = t[b, d]
-                if b + d < n1:
-                    tf[b + d, p - d] = t[b, d]
+        if p == 3:  # the loop below with a constant length (same assignments)
+            for b in range(b_lo, b_hi + 1):
+                for d in range(4):
+                    tf[b, 3 + d] = t[b, d]
+                    if b + d < n1:
+                        tf[b + d, 3 - d] = t[b, d]
+        else:
+            for b in range(b_lo, b_hi + 1):
+                for d in range(p + 1):
+                    tf[b, p + d] = t[b, d]
+                    if b + d < n1:
+                        tf[b + d, p - d] = t[b, d]
         for a1 in range(p + 1):
             row1 = (sx - p + a1) * n1
             xa1 = basis_x[i, a1]
             for b in range(b_lo, b_hi + 1):
                 rhs[row1 + b] += xa1 * r[b]
             f = xa1 * xa1
+            if p == 3:  # the two loops below with constant lengths (unrolled; same operations)
+                for b in range(b_lo, b_hi + 1):
+                    for d in range(4):
+                        lower[row1 + b, d] += f * tf[b, 3 + d]
+                for a2 in range(a1 + 1, 4):
+                    f = xa1 * basis_x[i, a2]
+                    off = (a2 - a1) * n1 - 3
+                    for b1 in range(b_lo, b_hi + 1):
+                        k1 = row1 + b1
+                        for e in range(7):
+                            lower[k1, off + e] += f * tf[b1, e]
+                continue
             for b in range(b_lo, b_hi + 1):
                 for d in range(p + 1):
                     lower[row1 + b, d] += f * tf[b, p + d]
@@ -685,10 +704,8 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                         lower[k1, off + e] += f * tf[b1, e]
         for b in range(b_lo, b_hi + 1):
             r[b] = 0.0
-            for d in range(p + 1):
-                t[b, d] = 0.0
-            for e in range(2 * p + 1):
-                tf[b, e] = 0.0
+            t[b, :] = 0.0
+            tf[b, :] = 0.0
     if rational:  # A -> diag(R) A diag(R), rhs -> R rhs (the rational basis R N_a N_b / D)
         rw = rational_weights.ravel()
         for k in range(size):
@@ -731,6 +748,25 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
         first = i * m1
         end = first + m1
         sx = spans_x[i] - p
+        if p == 3 and rational:  # the loop below with a constant length (same operations)
+            x0 = basis_x[i, 0]
+            x1 = basis_x[i, 1]
+            x2 = basis_x[i, 2]
+            x3 = basis_x[i, 3]
+            while k < count and cells[k] < end:
+                c = cells[k]
+                k += 1
+                j = c - first
+                acc_n = 0.0 + x0 * col_n[j, sx]
+                acc_d = 0.0 + x0 * col_d[j, sx]
+                acc_n += x1 * col_n[j, sx + 1]
+                acc_d += x1 * col_d[j, sx + 1]
+                acc_n += x2 * col_n[j, sx + 2]
+                acc_d += x2 * col_d[j, sx + 2]
+                acc_n += x3 * col_n[j, sx + 3]
+                acc_d += x3 * col_d[j, sx + 3]
+                of[c] = acc_n / acc_d
+            continue
         while k < count and cells[k] < end:
             c = cells[k]
             k += 1
@@ -926,3 +962,21 @@ def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, ma
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
             out[i, j] = acc_n / acc_d if rational else acc_n
     return out
+
+
+@numba.njit(cache=True)
+def below_surface_median(heights, step, high):
+    """(median of -h, count) over every ``step``-th height h with -high < h <= 0 (the terrain
+    noise below the surface, :func:`o3d_terrain.segment.auto_threshold`); median NaN when
+    there is none. np.median selects exactly, so it is the value numpy.median gives."""
+    n = (heights.shape[0] + step - 1) // step
+    gathered = np.empty(n)
+    count = 0
+    for k in range(n):
+        h = heights[k * step]
+        if h <= 0.0 and h > -high:
+            gathered[count] = -h
+            count += 1
+    if count == 0:
+        return np.nan, 0
+    return np.median(gathered[:count]), count

@@ -52,9 +52,11 @@ def cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny):
 
 
 @numba.njit(cache=True)
-def quantize(cells, z, nx, ny, min_points, fill_empty):
+def quantize(cells, z, nx, ny, min_points, fill_empty, layer=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
-    and mean z.
+    and mean z; with ``layer`` > 0 also the number and the sum of the z values within
+    [lowest, lowest + layer] per cell (the ground-layer statistics of
+    :mod:`o3d_terrain.ground_layer`, summed in point order; empty arrays otherwise).
 
     ``cells`` from :func:`cell_indices`; points with a negative cell or non-finite z are skipped
     and counted: the result ends with (number non-finite, number outside the grid).
@@ -89,12 +91,18 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
         if count[c] > 0:
             mean[c] = total[c] / count[c]
     squares = np.zeros(m)
+    use_layer = layer > 0.0
+    layer_count = np.zeros(m if use_layer else 0, np.int64)
+    layer_sum = np.zeros(m if use_layer else 0)
     for k in range(cells.shape[0]):
         c = cells[k]
         if c < 0 or not math.isfinite(z[k]):
             continue
         d = z[k] - mean[c]
         squares[c] += d * d
+        if use_layer and z[k] <= lowest[c] + layer:
+            layer_count[c] += 1
+            layer_sum[c] += z[k]
     height = np.zeros(m)
     state = np.zeros(m, np.uint8)
     for c in range(m):
@@ -132,6 +140,8 @@ def quantize(cells, z, nx, ny, min_points, fill_empty):
         mean.reshape(nx, ny),
         nonfinite,
         outside,
+        layer_count.reshape(nx, ny) if use_layer else layer_count.reshape(0, 0),
+        layer_sum.reshape(nx, ny) if use_layer else layer_sum.reshape(0, 0),
     )
 
 

@@ -98,47 +98,27 @@ def cone_fill(height, measured, cell_size, gap_slope):
 
 
 @numba.njit(cache=True)
-def window_min(values, radius):
-    """Minimum over the (2 radius + 1)^2 square window around every cell (clipped at the
-    borders). Separable van Herk / Gil-Werman: per axis, block prefix and suffix minima over
-    blocks of w = 2 radius + 1 cells; the window [lo, hi] of a cell spans the suffix of lo's
-    block and the prefix of hi's, or, within one block (a window clipped at a border), starts
-    at the block's start or ends at the array's end. O(cells) whatever the radius; both
-    passes run along rows (contiguous)."""
+def _window_min_axis0(values, radius):
+    """Minimum over [i - radius, i + radius] (clipped) along axis 0 of every column: van Herk /
+    Gil-Werman block prefix and suffix minima over blocks of w = 2 radius + 1 rows; the window
+    [lo, hi] of row i spans the suffix of lo's block and the prefix of hi's, or, within one
+    block (a window clipped at a border), starts at the block's start or ends at the array's
+    end. Every step processes whole rows (contiguous, vectorised)."""
     nx, ny = values.shape
     w = 2 * radius + 1
     prefix = np.empty((nx, ny))
     suffix = np.empty((nx, ny))
-    rows = np.empty((nx, ny))
-    for i in range(nx):  # along y, row by row
-        for start in range(0, ny, w):
-            stop = min(start + w, ny)
-            prefix[i, start] = values[i, start]
-            for k in range(start + 1, stop):
-                prefix[i, k] = min(prefix[i, k - 1], values[i, k])
-            suffix[i, stop - 1] = values[i, stop - 1]
-            for k in range(stop - 2, start - 1, -1):
-                suffix[i, k] = min(suffix[i, k + 1], values[i, k])
-        for j in range(ny):
-            lo = max(j - radius, 0)
-            hi = min(j + radius, ny - 1)
-            if lo // w != hi // w:
-                rows[i, j] = min(suffix[i, lo], prefix[i, hi])
-            elif lo % w == 0:
-                rows[i, j] = prefix[i, hi]
-            else:
-                rows[i, j] = suffix[i, lo]
-    for start in range(0, nx, w):  # along x, whole rows at a time
+    for start in range(0, nx, w):
         stop = min(start + w, nx)
         for j in range(ny):
-            prefix[start, j] = rows[start, j]
-            suffix[stop - 1, j] = rows[stop - 1, j]
+            prefix[start, j] = values[start, j]
+            suffix[stop - 1, j] = values[stop - 1, j]
         for k in range(start + 1, stop):
             for j in range(ny):
-                prefix[k, j] = min(prefix[k - 1, j], rows[k, j])
+                prefix[k, j] = min(prefix[k - 1, j], values[k, j])
         for k in range(stop - 2, start - 1, -1):
             for j in range(ny):
-                suffix[k, j] = min(suffix[k + 1, j], rows[k, j])
+                suffix[k, j] = min(suffix[k + 1, j], values[k, j])
     out = np.empty((nx, ny))
     for i in range(nx):
         lo = max(i - radius, 0)
@@ -156,6 +136,17 @@ def window_min(values, radius):
 
 
 @numba.njit(cache=True)
+def window_min(values, radius):
+    """Minimum over the (2 radius + 1)^2 square window around every cell (clipped at the
+    borders). Separable (:func:`_window_min_axis0` along x, then along y on the transposed
+    array, whose rows are contiguous): O(cells) whatever the radius. A minimum is exact in
+    any order, so this is the plain window minimum."""
+    along_x = _window_min_axis0(values, radius)
+    return np.ascontiguousarray(
+        _window_min_axis0(np.ascontiguousarray(along_x.T), radius).T)
+
+
+@numba.njit(cache=True)
 def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
     """Cells reachable from ``seeds`` by 8-neighbour steps that climb at most
     step_slope * distance + tolerance (descending is free). ``height`` must be finite where it
@@ -163,22 +154,23 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
     mask over all cells (measured and crossed empty cells)."""
     nx, ny = height.shape
     accepted = np.zeros((nx, ny), np.bool_)
-    queue = np.empty(nx * ny, np.int64)
+    queue_i = np.empty(nx * ny, np.int32)  # row and column apart: no division per cell
+    queue_j = np.empty(nx * ny, np.int32)
     head = 0
     tail = 0
     for i in range(nx):
         for j in range(ny):
             if seeds[i, j] and np.isfinite(height[i, j]):
                 accepted[i, j] = True
-                queue[tail] = i * ny + j
+                queue_i[tail] = i
+                queue_j[tail] = j
                 tail += 1
     straight = step_slope * cell_size + tolerance
     diagonal = step_slope * cell_size * _SQRT2 + tolerance
     while head < tail:
-        k = queue[head]
+        i = queue_i[head]
+        j = queue_j[head]
         head += 1
-        i = k // ny
-        j = k - i * ny
         h = height[i, j]
         for di in range(-1, 2):
             a = i + di
@@ -192,7 +184,8 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
                 hn = height[a, b]
                 if hn <= h + limit:
                     accepted[a, b] = True
-                    queue[tail] = a * ny + b
+                    queue_i[tail] = a
+                    queue_j[tail] = b
                     tail += 1
     return accepted
 
@@ -291,3 +284,84 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
             if dense[i, j]:
                 compact[i, j] = True
     return compact, rise
+
+
+@numba.njit(cache=True)
+def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
+    """The inputs of :func:`connected_terrain` for the terrain prior, in fewer passes:
+    (crossed, seeds) with crossed = :func:`cone_fill` (low, measured, cell_size, gap_slope)
+    set to inf on the cells flagged by :func:`above_slope_cone` (low, cell_size, slope,
+    tolerance), and seeds = measured cells, not flagged, with low <= :func:`window_min`
+    (low, radius). Both cone envelopes are swept together (the same operations per output as
+    :func:`cone_fill`, so the same values)."""
+    nx, ny = low.shape
+    gap = low.copy()  # cone_fill with measured cells fixed, gap slope
+    env = low.copy()  # cone_fill with nothing fixed, slope
+    g1 = gap_slope * cell_size
+    g2 = g1 * _SQRT2
+    s1 = slope * cell_size
+    s2 = s1 * _SQRT2
+    for i in range(nx):  # forward sweep: neighbours above and to the left
+        for j in range(ny):
+            fixed = measured[i, j]
+            v = gap[i, j]
+            e = env[i, j]
+            if i > 0:
+                v = min(v, gap[i - 1, j] + g1)
+                e = min(e, env[i - 1, j] + s1)
+                if j > 0:
+                    v = min(v, gap[i - 1, j - 1] + g2)
+                    e = min(e, env[i - 1, j - 1] + s2)
+                if j < ny - 1:
+                    v = min(v, gap[i - 1, j + 1] + g2)
+                    e = min(e, env[i - 1, j + 1] + s2)
+            if j > 0:
+                v = min(v, gap[i, j - 1] + g1)
+                e = min(e, env[i, j - 1] + s1)
+            if not fixed:
+                gap[i, j] = v
+            env[i, j] = e
+    for i in range(nx - 1, -1, -1):  # backward sweep
+        for j in range(ny - 1, -1, -1):
+            fixed = measured[i, j]
+            v = gap[i, j]
+            e = env[i, j]
+            if i < nx - 1:
+                v = min(v, gap[i + 1, j] + g1)
+                e = min(e, env[i + 1, j] + s1)
+                if j > 0:
+                    v = min(v, gap[i + 1, j - 1] + g2)
+                    e = min(e, env[i + 1, j - 1] + s2)
+                if j < ny - 1:
+                    v = min(v, gap[i + 1, j + 1] + g2)
+                    e = min(e, env[i + 1, j + 1] + s2)
+            if j < ny - 1:
+                v = min(v, gap[i, j + 1] + g1)
+                e = min(e, env[i, j + 1] + s1)
+            if not fixed:
+                gap[i, j] = v
+            env[i, j] = e
+    lowest_around = window_min(low, radius)
+    seeds = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            h = low[i, j]
+            if not np.isfinite(h):
+                continue
+            best = np.inf
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0):
+                        continue
+                    v = env[a, b] + (s1 if (di == 0 or dj == 0) else s2)
+                    if v < best:
+                        best = v
+            if h > best + tolerance:  # above the slope cone of a neighbour: a wall's top
+                gap[i, j] = np.inf
+            else:
+                seeds[i, j] = measured[i, j] and h <= lowest_around[i, j]
+    return gap, seeds

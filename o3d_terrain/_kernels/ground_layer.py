@@ -57,3 +57,24 @@ def ground_layer_samples(positions, x_min, y_min, cell_size, z, lowest, count, m
             samples[c] = total[c] / n
             replaced[c] = True
     return samples.reshape(nx, ny), replaced.reshape(nx, ny)
+
+
+@numba.njit(cache=True)
+def ground_layer_from_sums(z, lowest, count, measured, layer_count, layer_sum, layer,
+                           min_points, min_fraction):
+    """:func:`ground_layer_samples` from per-cell statistics gathered in the grid's point
+    pass (``layer_count`` and ``layer_sum`` of the z values within [lowest, lowest + layer],
+    :func:`o3d_terrain._kernels.grid.quantize`): the same candidates, counts and sums (in
+    point order), so the same samples, without a pass over the points."""
+    nx, ny = z.shape
+    samples = z.copy()
+    replaced = np.zeros((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            if not (measured[i, j] and z[i, j] > lowest[i, j] + layer):
+                continue
+            n = layer_count[i, j]
+            if n >= min_points and n >= min_fraction * count[i, j]:
+                samples[i, j] = layer_sum[i, j] / n
+                replaced[i, j] = True
+    return samples, replaced

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..frame import Frame
 from ..grid import quantize_points
+from ..ground_layer import default_layer
 from ..options import POSITIVE, Range, option
 from .base import Stage, stage
 
@@ -43,6 +44,7 @@ class GridQuantize(Stage):
         grid = quantize_points(
             frame.positions, cell_size=self.cell_size, region=self.region,
             min_points=self.min_points, fill_empty=self.fill_empty,
+            layer=default_layer(self.cell_size),  # what RationalBSplineTerrain's defaults use
         )
         frame = frame.with_products(grid=grid)
         if grid.skipped_nonfinite:
