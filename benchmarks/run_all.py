@@ -94,7 +94,7 @@ def _standard_frame(spec: str, seed: int):
     obstacle = np.asarray(cloud.is_obstacle, dtype=bool)
     return LabelledFrame(name=spec, positions=positions, is_ground=~obstacle,
                          scored=~np.asarray(cloud.is_outlier, dtype=bool), obstacle=obstacle,
-                         terrain=cloud.terrain_height, kind=kind, source=f"synthetic offroad",
+                         terrain=cloud.terrain_height, kind=kind, source="synthetic offroad",
                          sensor_height=_sensor_height(cloud))
 
 

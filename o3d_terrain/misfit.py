@@ -24,7 +24,6 @@ so never measure a misfit themselves. Elsewhere the global threshold is unchange
 
 from __future__ import annotations
 
-import math
 
 import numba
 import numpy as np

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from o3d_terrain.deviation import run_deviation_protocol, write_deviation_outputs
