@@ -166,6 +166,9 @@ def load_vehicle_profile(name_or_path: str | Path | VehicleProfile) -> VehiclePr
 def _profile_path(text: str) -> Path:
     path = Path(text)
     if path.suffix.lower() not in (".yaml", ".yml"):
+        built_in = VEHICLES_DIR / f"{text}.yaml"
+        if path.name == text and built_in.is_file():  # the common case, without a listing
+            return built_in
         names = vehicle_profile_names()
         if text not in names:
             from .errors import did_you_mean
