@@ -26,7 +26,6 @@ import numpy as np
 
 from .errors import InputError
 from ._kernels import ground as _ground
-from ._kernels import noise as _nk
 from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
 from .ground_layer import default_layer, ground_layer_samples
@@ -401,7 +400,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     equalized = np.zeros(z.shape, bool)
     iteration = 0
     noise = noise_floor
-    cell_sigma = None
+    cell_sigma = None  # per-cell noise scale of the sensor model, from the second layout on
+    no_sigma = np.zeros((1, 1))
     for level, n in enumerate(layouts):
         if grid_noise is not None and level > 0:
             # the sensor's noise under the surface of the previous layout: samples and scales
@@ -423,16 +423,11 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             th_above = above_k * noise
             w_next = weight_buffers[iteration % 2]
             p_next = sample_buffers[iteration % 2]
-            if cell_sigma is None:
-                moved, change = _tk.robust_pass(
-                    z, s, base, valid_cells, compact, use_prior, prior_spread, th_above,
-                    below_k * noise, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
-                    equalized)
-            else:  # per-cell thresholds from the sensor's noise model
-                moved, change = _nk.robust_pass_cells(
-                    z, s, base, valid_cells, compact, use_prior, prior_spread, noise,
-                    cell_sigma, above_k, below_k, clip_k, p, previous_w, k > 0, w_next, ratios,
-                    p_next, equalized)
+            moved, change = _tk.robust_pass(
+                z, s, base, valid_cells, compact, use_prior, prior_spread, noise,
+                no_sigma if cell_sigma is None else cell_sigma, cell_sigma is not None,
+                above_k, below_k, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
+                equalized)
             have_ratios = True
             w, p = w_next, p_next
             records.append(IterationRecord(n, mean_error, th_above, moved))

@@ -9,6 +9,8 @@ matrix is banded. Band storage is LAPACK's lower form (``scipy.linalg.solveh_ban
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -235,14 +237,17 @@ def residual_scale(z, surface, measured_cells, floor):
 
 
 @numba.njit(cache=True)
-def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
-                th_above, th_below, clip_k, previous_samples, previous_weights, has_previous,
-                weights, ratios, samples, equalized):
+def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread, noise,
+                cell_sigma, use_cell_sigma, above_k, below_k, clip_k, previous_samples,
+                previous_weights, has_previous, weights, ratios, samples, equalized):
     """Sample weights, control-point weight ratios and equalized samples of one pass, written
     into ``weights``, ``ratios``, ``samples`` and ``equalized`` at the cells ``valid_cells``
     (flat indices, C order, of the cells with base > 0; the caller keeps weight 0, ratio 0,
     sample z and False on every other cell). All arrays are C-contiguous (m0, m1).
 
+    Noise scale of a cell: ``noise``, or with ``use_cell_sigma`` (a range-dependent sensor
+    noise model) sqrt(noise^2 + cell_sigma[c]^2), cell_sigma (m0, m1) in metres; thresholds
+    th_above = above_k * scale, th_below = below_k * scale.
     On a valid cell, r = z - surface: t = r / th_above above the surface, -r / th_below
     below; weight w = base / (1 + t^4) (the bounded form of Broggi et al. eq. 3 with
     alpha = 4). With ``use_prior``, compact cells above the surface get
@@ -264,8 +269,9 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
     ef = equalized.ravel()
     ppf = previous_samples.ravel()
     pwf = previous_weights.ravel()
-    band = clip_k * th_above
     spf = prior_spread.ravel()
+    nf = cell_sigma.ravel()
+    noise2 = noise * noise
     moved = 0
     change = 0.0
     for k in range(valid_cells.shape[0]):
@@ -274,10 +280,12 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
         s = sf[c]
         r = zc - s
         b = bf[c]
+        scale = math.sqrt(noise2 + nf[c] * nf[c]) if use_cell_sigma else noise
+        th_above = above_k * scale
         if r > 0.0:
             t = r / th_above
         else:
-            t = -r / th_below
+            t = -r / (below_k * scale)
         t2 = t * t
         w = b / (1.0 + t2 * t2)
         keep = use_prior and cf[c]
@@ -287,7 +295,7 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
             w = b / (1.0 + tc2 * tc2)
         wf[c] = w
         rf[c] = w if b == 1.0 else w / max(b, 1e-12)
-        limit = s + band
+        limit = s + clip_k * th_above
         value = zc
         if zc > limit and not keep:
             value = limit
