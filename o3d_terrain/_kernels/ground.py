@@ -24,6 +24,26 @@ import numpy as np
 _SQRT2 = 1.4142135623730951
 
 
+@numba.njit(cache=True, inline="always")
+def _least_neighbour(envelope, i, j, straight, diagonal):
+    """min over the 8 neighbours n of cell (i, j) of envelope[n] + the step to n (``straight``
+    along an axis, ``diagonal`` across): the lowest the slope cone of a neighbour allows."""
+    nx, ny = envelope.shape
+    best = np.inf
+    for di in range(-1, 2):
+        a = i + di
+        if a < 0 or a >= nx:
+            continue
+        for dj in range(-1, 2):
+            b = j + dj
+            if b < 0 or b >= ny or (di == 0 and dj == 0):
+                continue
+            v = envelope[a, b] + (straight if (di == 0 or dj == 0) else diagonal)
+            if v < best:
+                best = v
+    return best
+
+
 @numba.njit(cache=True)
 def above_slope_cone(height, cell_size, slope, tolerance):
     """Cells higher than tolerance above the cone of slope ``slope`` through any other cell:
@@ -41,19 +61,7 @@ def above_slope_cone(height, cell_size, slope, tolerance):
             h = height[i, j]
             if not np.isfinite(h):
                 continue
-            best = np.inf
-            for di in range(-1, 2):
-                a = i + di
-                if a < 0 or a >= nx:
-                    continue
-                for dj in range(-1, 2):
-                    b = j + dj
-                    if b < 0 or b >= ny or (di == 0 and dj == 0):
-                        continue
-                    v = envelope[a, b] + (straight if (di == 0 or dj == 0) else diagonal)
-                    if v < best:
-                        best = v
-            flagged[i, j] = h > best + tolerance
+            flagged[i, j] = h > _least_neighbour(envelope, i, j, straight, diagonal) + tolerance
     return flagged
 
 
@@ -348,19 +356,7 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
             h = low[i, j]
             if not np.isfinite(h):
                 continue
-            best = np.inf
-            for di in range(-1, 2):
-                a = i + di
-                if a < 0 or a >= nx:
-                    continue
-                for dj in range(-1, 2):
-                    b = j + dj
-                    if b < 0 or b >= ny or (di == 0 and dj == 0):
-                        continue
-                    v = env[a, b] + (s1 if (di == 0 or dj == 0) else s2)
-                    if v < best:
-                        best = v
-            if h > best + tolerance:  # above the slope cone of a neighbour: a wall's top
+            if h > _least_neighbour(env, i, j, s1, s2) + tolerance:  # above the slope cone of a neighbour: a wall's top
                 gap[i, j] = np.inf
             else:
                 seeds[i, j] = measured[i, j] and h <= lowest_around[i, j]
