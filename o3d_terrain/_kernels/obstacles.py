@@ -255,6 +255,24 @@ def observed_cells(positions, labels, heights, point_obstacle, tall, x_min, y_mi
     return slot, count[:m], highest[:m], rough_n[:m], rough_sum2[:m], cell_i[:m], cell_j[:m]
 
 
+@numba.njit(cache=True, inline="always")
+def _column_sums(rq, weights, by, dby, a, j, sy, p):
+    """The y contraction of control row ``a`` at grid column j (span ``sy``, basis values
+    ``by[j]`` and derivatives ``dby[j]``): sums over b of N_b R Q, N_b R, N'_b R Q, N'_b R
+    (``rq`` = R Q)."""
+    va = 0.0
+    vd = 0.0
+    vay = 0.0
+    vdy = 0.0
+    for k in range(p + 1):
+        b = sy - p + k
+        va += by[j, k] * rq[a, b]
+        vd += by[j, k] * weights[a, b]
+        vay += dby[j, k] * rq[a, b]
+        vdy += dby[j, k] * weights[a, b]
+    return va, vd, vay, vdy
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
     """|grad S| of the rational surface at every node (x[i], y[j]) (local coordinates), float64;
@@ -286,20 +304,8 @@ def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
                 t_ay[a, j] = np.nan
                 t_dy[a, j] = np.nan
                 continue
-            va = 0.0
-            vd = 0.0
-            vay = 0.0
-            vdy = 0.0
-            for k in range(p + 1):
-                b = sy - p + k
-                va += by[j, k] * rq[a, b]
-                vd += by[j, k] * weights[a, b]
-                vay += dby[j, k] * rq[a, b]
-                vdy += dby[j, k] * weights[a, b]
-            t_a[a, j] = va
-            t_d[a, j] = vd
-            t_ay[a, j] = vay
-            t_dy[a, j] = vdy
+            t_a[a, j], t_d[a, j], t_ay[a, j], t_dy[a, j] = _column_sums(rq, weights, by, dby,
+                                                                         a, j, sy, p)
     out = np.empty((nx, ny))
     for i in numba.prange(nx):
         bx = np.empty(p + 1)
@@ -329,9 +335,7 @@ def gradient_norm_grid(x, y, knots_x, knots_y, degree, control, weights, tol):
                 s_ay[j] += u * t_ay[a, j]
                 s_dy[j] += u * t_dy[a, j]
         for j in range(ny):
-            s = s_a[j] / s_d[j]
-            gx = (s_ax[j] - s * s_dx[j]) / s_d[j]
-            gy = (s_ay[j] - s * s_dy[j]) / s_d[j]
+            _, gx, gy = _bs.quotient_rule(s_a[j], s_d[j], s_ax[j], s_dx[j], s_ay[j], s_dy[j])
             out[i, j] = math.sqrt(gx * gx + gy * gy)
     return out
 
@@ -377,20 +381,8 @@ def slope_at_cells(x, y, cell_i, cell_j, knots_x, knots_y, degree, control, weig
             sy = span_y[j]
             if not columns[j] or sy < 0:
                 continue
-            va = 0.0
-            vd = 0.0
-            vay = 0.0
-            vdy = 0.0
-            for k in range(p + 1):
-                b = sy - p + k
-                va += by[j, k] * rq[a, b]
-                vd += by[j, k] * weights[a, b]
-                vay += dby[j, k] * rq[a, b]
-                vdy += dby[j, k] * weights[a, b]
-            t_a[a, j] = va
-            t_d[a, j] = vd
-            t_ay[a, j] = vay
-            t_dy[a, j] = vdy
+            t_a[a, j], t_d[a, j], t_ay[a, j], t_dy[a, j] = _column_sums(rq, weights, by, dby,
+                                                                         a, j, sy, p)
     bx = np.empty(p + 1)
     dbx = np.empty(p + 1)
     lft = np.empty(p + 1)
@@ -422,9 +414,7 @@ def slope_at_cells(x, y, cell_i, cell_j, knots_x, knots_y, degree, control, weig
                 s_dx += du * t_d[a, j]
                 s_ay += u * t_ay[a, j]
                 s_dy += u * t_dy[a, j]
-            s = s_a / s_d
-            gx = (s_ax - s * s_dx) / s_d
-            gy = (s_ay - s * s_dy) / s_d
+            _, gx, gy = _bs.quotient_rule(s_a, s_d, s_ax, s_dx, s_ay, s_dy)
             out[e] = math.atan(math.sqrt(gx * gx + gy * gy))
     return out
 
