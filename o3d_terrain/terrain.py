@@ -274,8 +274,8 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     c = float(grid.cell_size)
     step = math.tan(math.radians(max_slope_deg))
     radius = max(1, int(round(max_obstacle_width / 2 / c)))
-    # cone_fill of the gaps, walls (above_slope_cone) not crossed, seeds (window_min) not on
-    # walls: in one kernel
+    # the gap envelope, walls (above the slope cone of a neighbour) not crossed, seeds
+    # (window_min) not on walls: in one kernel
     crossed, seeds = _ground.prior_seeds(low, measured, c, math.tan(math.radians(gap_slope_deg)),
                                          step, float(tolerance), radius)
     connected = measured & _ground.connected_terrain(crossed, seeds, c, step, float(tolerance))

@@ -73,3 +73,54 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
                     height[ix, iy] = acc / len(values)
                     state[ix, iy] = 2
     return height, count, state, lowest, highest, means
+
+
+def cone_fill(height, measured, cell_size, slope):
+    """Plain reference of the lower cone envelope min_m (height[m] + slope * d(c, m)), d the
+    8-neighbour chamfer distance, by a forward and a backward raster sweep, kept equal to
+    ``height`` where ``measured`` (inf = empty; inf stays where no data is reachable)."""
+    height = np.asarray(height, dtype=np.float64)
+    nx, ny = height.shape
+    out = height.copy()
+    straight = slope * cell_size
+    diagonal = straight * math.sqrt(2.0)
+    forward = [(-1, 0, straight), (-1, -1, diagonal), (-1, 1, diagonal), (0, -1, straight)]
+    backward = [(1, 0, straight), (1, -1, diagonal), (1, 1, diagonal), (0, 1, straight)]
+    for rows, cols, steps in ((range(nx), range(ny), forward),
+                              (range(nx - 1, -1, -1), range(ny - 1, -1, -1), backward)):
+        for i in rows:
+            for j in cols:
+                if measured[i, j]:
+                    continue
+                v = out[i, j]
+                for di, dj, step in steps:
+                    a, b = i + di, j + dj
+                    if 0 <= a < nx and 0 <= b < ny:
+                        v = min(v, out[a, b] + step)
+                out[i, j] = v
+    return out
+
+
+def above_slope_cone(height, cell_size, slope, tolerance):
+    """Plain reference of the wall test: finite cells higher than ``tolerance`` above
+    min over the 8 neighbours n of (envelope[n] + slope * d(c, n)), envelope = the lower cone
+    envelope of slope ``slope`` with nothing kept fixed (Vosselman's slope-based filter)."""
+    height = np.asarray(height, dtype=np.float64)
+    nx, ny = height.shape
+    envelope = cone_fill(height, np.zeros((nx, ny), bool), cell_size, slope)
+    straight = slope * cell_size
+    diagonal = straight * math.sqrt(2.0)
+    flagged = np.zeros((nx, ny), bool)
+    for i in range(nx):
+        for j in range(ny):
+            if not np.isfinite(height[i, j]):
+                continue
+            best = math.inf
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    a, b = i + di, j + dj
+                    if (di or dj) and 0 <= a < nx and 0 <= b < ny:
+                        step = straight if (di == 0 or dj == 0) else diagonal
+                        best = min(best, envelope[a, b] + step)
+            flagged[i, j] = height[i, j] > best + tolerance
+    return flagged

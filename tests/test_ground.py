@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from naive import above_slope_cone, cone_fill
 
-from o3d_terrain._kernels.ground import (above_slope_cone, below_compact_neighbours,
-                                         compact_cells, cone_fill, prior_seeds,
+from o3d_terrain._kernels.ground import (below_compact_neighbours,
+                                         compact_cells, prior_seeds,
                                          steepest_neighbour_slope, window_min)
 
 
@@ -77,8 +78,8 @@ def test_compact_cells_matches_its_definition(rng, use_highest):
 
 @pytest.mark.parametrize("shape", [(23, 17), (1, 6), (6, 1), (40, 33)])
 def test_prior_seeds_equals_the_separate_kernels(rng, shape):
-    # the fused kernel of the terrain prior gives the values of cone_fill, above_slope_cone and
-    # window_min composed as terrain._terrain_prior composed them before
+    # the fused kernel of the terrain prior gives the values of the plain cone envelope, wall
+    # test (tests/naive.py) and window_min composed
     low = np.cumsum(rng.normal(0, 0.3, shape), axis=0) + rng.normal(0, 0.2, shape)
     low[rng.uniform(size=shape) < 0.3] = np.inf
     low[rng.uniform(size=shape) < 0.05] += 3.0  # walls

@@ -45,67 +45,6 @@ def _least_neighbour(envelope, i, j, straight, diagonal):
 
 
 @numba.njit(cache=True)
-def above_slope_cone(height, cell_size, slope, tolerance):
-    """Cells higher than tolerance above the cone of slope ``slope`` through any other cell:
-    height[c] > min_{n != c} (height[n] + slope * d(c, n)) + tolerance, with d the 8-neighbour
-    chamfer distance (Vosselman's slope-based filter, computed by two raster sweeps of the
-    lower cone envelope). inf heights are empty cells; they are never flagged."""
-    nx, ny = height.shape
-    # nothing kept fixed: envelope[c] = min_m height[m] + slope d(c, m) over every cell m
-    envelope = cone_fill(height, np.zeros((nx, ny), np.bool_), cell_size, slope)
-    flagged = np.zeros((nx, ny), np.bool_)
-    straight = slope * cell_size
-    diagonal = straight * _SQRT2
-    for i in range(nx):
-        for j in range(ny):
-            h = height[i, j]
-            if not np.isfinite(h):
-                continue
-            flagged[i, j] = h > _least_neighbour(envelope, i, j, straight, diagonal) + tolerance
-    return flagged
-
-
-@numba.njit(cache=True)
-def cone_fill(height, measured, cell_size, gap_slope):
-    """The lower cone envelope min_m (height[m] + gap_slope * d(c, m)) over cells m, d the
-    8-neighbour chamfer distance (two raster sweeps), kept equal to ``height`` where
-    ``measured``. ``height`` is inf at empty cells; inf remains where no data is reachable."""
-    nx, ny = height.shape
-    out = height.copy()
-    straight = gap_slope * cell_size
-    diagonal = straight * _SQRT2
-    for i in range(nx):  # forward sweep: neighbours above and to the left
-        for j in range(ny):
-            if measured[i, j]:
-                continue
-            v = out[i, j]
-            if i > 0:
-                v = min(v, out[i - 1, j] + straight)
-                if j > 0:
-                    v = min(v, out[i - 1, j - 1] + diagonal)
-                if j < ny - 1:
-                    v = min(v, out[i - 1, j + 1] + diagonal)
-            if j > 0:
-                v = min(v, out[i, j - 1] + straight)
-            out[i, j] = v
-    for i in range(nx - 1, -1, -1):  # backward sweep
-        for j in range(ny - 1, -1, -1):
-            if measured[i, j]:
-                continue
-            v = out[i, j]
-            if i < nx - 1:
-                v = min(v, out[i + 1, j] + straight)
-                if j > 0:
-                    v = min(v, out[i + 1, j - 1] + diagonal)
-                if j < ny - 1:
-                    v = min(v, out[i + 1, j + 1] + diagonal)
-            if j < ny - 1:
-                v = min(v, out[i, j + 1] + straight)
-            out[i, j] = v
-    return out
-
-
-@numba.njit(cache=True)
 def _window_min_axis0(values, radius):
     """Minimum over [i - radius, i + radius] (clipped) along axis 0 of every column: van Herk /
     Gil-Werman block prefix and suffix minima over blocks of w = 2 radius + 1 rows; the window
@@ -158,7 +97,7 @@ def window_min(values, radius):
 def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
     """Cells reachable from ``seeds`` by 8-neighbour steps that climb at most
     step_slope * distance + tolerance (descending is free). ``height`` must be finite where it
-    can be crossed (e.g. from :func:`cone_fill`); inf cells are never entered. Returns a bool
+    can be crossed (e.g. the gap envelope of :func:`prior_seeds`); inf cells are never entered. Returns a bool
     mask over all cells (measured and crossed empty cells)."""
     nx, ny = height.shape
     accepted = np.zeros((nx, ny), np.bool_)
@@ -296,15 +235,18 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
 
 @numba.njit(cache=True)
 def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
-    """The inputs of :func:`connected_terrain` for the terrain prior, in fewer passes:
-    (crossed, seeds) with crossed = :func:`cone_fill` (low, measured, cell_size, gap_slope)
-    set to inf on the cells flagged by :func:`above_slope_cone` (low, cell_size, slope,
-    tolerance), and seeds = measured cells, not flagged, with low <= :func:`window_min`
-    (low, radius). Both cone envelopes are swept together (the same operations per output as
-    :func:`cone_fill`, so the same values)."""
+    """The inputs of :func:`connected_terrain` for the terrain prior: (crossed, seeds).
+
+    Two lower cone envelopes min_m (low[m] + slope * d(c, m)) (d the 8-neighbour chamfer
+    distance), swept together by two raster passes: ``gap`` with the measured cells kept fixed
+    and the gap slope (how empty cells are crossed), ``env`` with nothing fixed and ``slope``.
+    Walls: cells higher than ``tolerance`` above the least neighbour value of ``env``
+    (Vosselman's slope-based filter); crossed = gap, inf on walls. Seeds: measured cells, not
+    walls, with low <= :func:`window_min` (low, radius). Plain references of both envelopes
+    and of the wall test: tests/naive.py (cone_fill, above_slope_cone)."""
     nx, ny = low.shape
-    gap = low.copy()  # cone_fill with measured cells fixed, gap slope
-    env = low.copy()  # cone_fill with nothing fixed, slope
+    gap = low.copy()  # measured cells fixed, gap slope
+    env = low.copy()  # nothing fixed, slope
     g1 = gap_slope * cell_size
     g2 = g1 * _SQRT2
     s1 = slope * cell_size
