@@ -19,6 +19,7 @@ import numpy as np
 
 from ._kernels import bspline as _bs
 from .errors import InputError
+from .misfit import block_size, misfit_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds",
@@ -116,7 +117,6 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     if threshold is None:
         threshold = auto_threshold(h)
         if misfit and isinstance(surface, TerrainSurface):
-            from .misfit import block_size, misfit_thresholds
             local = misfit_thresholds(p, h, threshold, block=block_size(surface))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
