@@ -24,12 +24,12 @@ def ground_layer_samples(positions, x_min, y_min, cell_size, z, lowest, count, m
 
     A pass over the cells finds the candidates (sample above the layer); only if there are
     any, one pass over the rows (x, y, z) of ``positions`` (points outside the grid or with
-    a non-finite coordinate are skipped); then one pass over the cells."""
+    a non-finite coordinate are skipped) for the layer's counts and sums; then the rule of
+    :func:`ground_layer_from_sums`."""
     nx, ny = z.shape
     m = nx * ny
     flat_z = z.reshape(m)
     flat_lowest = lowest.reshape(m)
-    flat_count = count.reshape(m)
     flat_measured = measured.reshape(m)
     # candidate cells: sample above the layer (few: most cells are compact)
     top = np.full(m, -np.inf)
@@ -49,14 +49,8 @@ def ground_layer_samples(positions, x_min, y_min, cell_size, z, lowest, count, m
             if h <= top[c] and math.isfinite(h):
                 near[c] += 1
                 total[c] += h
-    samples = flat_z.copy()
-    replaced = np.zeros(m, np.bool_)
-    for c in range(m):
-        n = near[c]
-        if n >= min_points and n >= min_fraction * flat_count[c]:
-            samples[c] = total[c] / n
-            replaced[c] = True
-    return samples.reshape(nx, ny), replaced.reshape(nx, ny)
+    return ground_layer_from_sums(z, lowest, count, measured, near.reshape(nx, ny),
+                                  total.reshape(nx, ny), layer, min_points, min_fraction)
 
 
 @numba.njit(cache=True)
