@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 from .frame import LABELS, Frame, as_frame
-from .grid import quantize_points, region_of
+from .grid import region_of
 from .ground_layer import default_layer
 from .noise import RangeNoise
 from .segment import TerrainLabel
@@ -142,9 +142,7 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
     layer = default_layer(quantize.cell_size, noise_floor=terrain.noise_floor,
                           max_slope_deg=terrain.max_slope_deg) \
         if terrain.ground_layer and terrain.method == "robust" else 0.0
-    grid = quantize._guard(lambda: quantize_points(
-        positions, cell_size=quantize.cell_size, region=extent,
-        min_points=quantize.min_points, fill_empty=quantize.fill_empty, layer=layer))
+    grid = quantize._guard(lambda: quantize.grid(positions, region=extent, layer=layer))
     return terrain._guard(lambda: terrain.fit(grid, positions)).surface
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..frame import Frame
-from ..grid import quantize_points
+from ..grid import HeightGrid, quantize_points
 from ..ground_layer import default_layer
 from ..options import POSITIVE, Range, option
 from .base import Stage, stage
@@ -41,11 +43,7 @@ class GridQuantize(Stage):
     )
 
     def run(self, frame: Frame) -> Frame:
-        grid = quantize_points(
-            frame.positions, cell_size=self.cell_size, region=self.region,
-            min_points=self.min_points, fill_empty=self.fill_empty,
-            layer=default_layer(self.cell_size),  # what RationalBSplineTerrain's defaults use
-        )
+        grid = self.grid(frame.positions)
         frame = frame.with_products(grid=grid)
         if grid.skipped_nonfinite:
             frame = frame.with_note(
@@ -54,3 +52,16 @@ class GridQuantize(Stage):
             frame = frame.with_note(
                 f"{self.type_name}: {grid.skipped_outside} point(s) outside the region")
         return frame
+
+    def grid(self, positions: np.ndarray, *, region=None, layer: float | None = None
+             ) -> HeightGrid:
+        """The grid of :meth:`run` from (N, 3) positions. region: overrides the option (e.g.
+        an extent already computed); layer: thickness of the ground-layer statistics
+        gathered in the same pass (None = :func:`~o3d_terrain.ground_layer.default_layer`,
+        what RationalBSplineTerrain's defaults use; 0 = none)."""
+        return quantize_points(
+            positions, cell_size=self.cell_size,
+            region=self.region if region is None else region,
+            min_points=self.min_points, fill_empty=self.fill_empty,
+            layer=default_layer(self.cell_size) if layer is None else layer,
+        )
