@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..io import las_positions, las_units, open_las
+from ..io import las_positions, open_las
 
 SEMANTIC_KITTI_GROUND = (40, 44, 48, 49, 60, 72)
 SEMANTIC_KITTI_IGNORED = (0, 1)
@@ -164,13 +164,6 @@ def read_semantic_kitti_frame(scan_path: str | os.PathLike, label_path: str | os
 
 # ---------------------------------------------------------------------------------------------
 # LAS / LAZ
-
-
-def las_linear_unit(las) -> tuple[float, str]:
-    """Metres per x/y unit of a laspy file and where it was read
-    (:func:`o3d_terrain.io.las_units`); ``(1.0, "unknown")`` when the file declares none."""
-    units = las_units(las)
-    return units.horizontal, units.source
 
 
 def read_las_frame(path: str | os.PathLike) -> LabelledFrame:
