@@ -403,9 +403,6 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     cell_sigma = None  # per-cell noise scale of the sensor model, from the second layout on
     no_sigma = np.zeros((1, 1))
     for level, n in enumerate(layouts):
-        if grid_noise is not None and level > 0:
-            # the sensor's noise under the surface of the previous layout: samples and scales
-            z, cell_sigma = _noise_update(grid_noise, basis.evaluate(q, r), z, z0, measured)
         basis = GridBasis(xl, yl, n, degree, region_local)
         coverage = _project(basis, valid_values, valid_cells)  # remap denominator, per layout
         final = level == len(layouts) - 1
@@ -436,6 +433,9 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             previous_w = w
             if iteration >= max_iterations and final:
                 break
+        if grid_noise is not None and not final:
+            # the sensor's noise under this layout's surface: samples and scales of the next
+            z, cell_sigma = _noise_update(grid_noise, basis.evaluate(q, r), z, z0, measured)
     basis_final = basis
     rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
                                                               valid_cells)
