@@ -48,8 +48,17 @@ __all__ = ["VehicleProfile", "load_vehicle_profile", "vehicle_profile_names", "C
            "traversability_cost", "surface_on_grid", "VEHICLES_DIR",
            "UNKNOWN", "FREE", "INSCRIBED", "LETHAL"]
 
-#: built-in vehicle profiles: configs/vehicles/<name>.yaml in the source tree
-VEHICLES_DIR = Path(__file__).resolve().parents[1] / "configs" / "vehicles"
+
+def _vehicles_dir() -> Path:
+    """The built-in vehicle profiles: configs/vehicles/<name>.yaml in a source checkout,
+    o3d_terrain/vehicles/ in an installed wheel (pyproject.toml ships the one as the other)."""
+    here = Path(__file__).resolve()
+    installed = here.parent / "vehicles"
+    return installed if installed.is_dir() else here.parents[1] / "configs" / "vehicles"
+
+
+#: built-in vehicle profiles (see _vehicles_dir)
+VEHICLES_DIR = _vehicles_dir()
 
 #: cell states of a cost map
 UNKNOWN, FREE, INSCRIBED, LETHAL = 0, 1, 2, 3

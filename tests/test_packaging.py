@@ -1,0 +1,36 @@
+"""The package's build configuration ships every subpackage and the built-in vehicle profiles."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import o3d_terrain
+from o3d_terrain import traversability
+
+ROOT = Path(o3d_terrain.__file__).resolve().parents[1]
+
+
+def _setuptools_config() -> dict:
+    tomllib = pytest.importorskip("tomllib", reason="tomllib needs Python 3.11")
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+
+
+def test_every_subpackage_is_listed_for_the_wheel():
+    listed = set(_setuptools_config()["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts)
+             for p in (ROOT / "o3d_terrain").rglob("__init__.py")}
+    assert found - listed == set(), "add these packages to [tool.setuptools] packages"
+
+
+def test_vehicle_profiles_ship_inside_the_package():
+    config = _setuptools_config()
+    source = config["package-dir"]["o3d_terrain.vehicles"]
+    assert (ROOT / source).resolve() == (ROOT / "configs" / "vehicles").resolve()
+    assert "o3d_terrain.vehicles" in config["packages"]
+    assert config["package-data"]["o3d_terrain.vehicles"] == ["*.yaml"]
+    # in a source checkout the profiles are read from configs/vehicles
+    assert traversability.VEHICLES_DIR == ROOT / "configs" / "vehicles"
+    assert set(traversability.vehicle_profile_names()) == {
+        p.stem for p in (ROOT / "configs" / "vehicles").glob("*.yaml")}
