@@ -524,6 +524,10 @@ def _per_frame_table(results, dataset, title, key="f1", label="F1 (%)") -> list[
                     names.append(failure["name"])
                 cells[(failure["name"], method)] = "failed"
                 times[(failure["name"], method)] = "failed"
+    # frames where the score is undefined for every method (obstacle recall on a scene
+    # without obstacles) are left out of the table
+    undefined = [n for n in names if all(cells.get((n, m), "n/a") == "n/a" for m in methods)]
+    names = [n for n in names if n not in undefined]
     if not names:
         return [f"### {title}", "", "n/a: no frame was evaluated (see the notes).", ""]
     head = "| frame | points | " + " | ".join(METHOD_LABELS[m] for m in methods) + " |"
@@ -532,6 +536,8 @@ def _per_frame_table(results, dataset, title, key="f1", label="F1 (%)") -> list[
     for name in names:
         row = [f"{cells.get((name, m), 'n/a')} / {times.get((name, m), 'n/a')}" for m in methods]
         lines.append(f"| {name} | {points.get(name, 0):,} | " + " | ".join(row) + " |")
+    if undefined:
+        lines += ["", f"Left out (no obstacle points, so the score is undefined): {', '.join(undefined)}."]
     return lines + [""]
 
 
