@@ -537,7 +537,8 @@ def _per_frame_table(results, dataset, title, key="f1", label="F1 (%)") -> list[
         row = [f"{cells.get((name, m), 'n/a')} / {times.get((name, m), 'n/a')}" for m in methods]
         lines.append(f"| {name} | {points.get(name, 0):,} | " + " | ".join(row) + " |")
     if undefined:
-        lines += ["", f"Left out (no obstacle points, so the score is undefined): {', '.join(undefined)}."]
+        lines += ["", f"Left out (the score is undefined there for every method, e.g. obstacle "
+                      f"recall without obstacle points): {', '.join(undefined)}."]
     return lines + [""]
 
 
