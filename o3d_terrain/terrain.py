@@ -405,6 +405,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     sample_buffers = (z.copy(), z.copy())
     ratios = np.zeros(count)  # W / base of the last pass, remapped onto each layout
     surface = np.zeros(count)  # the surface at the valid cells
+    denominators = np.zeros(count)  # its denominator (from the solve's assembly)
     ones = np.ones(count)  # the remap denominator's values (the valid mask)
     have_ratios = False
     records = []
@@ -423,8 +424,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             iteration += 1
             r = _control_weights(ratios, coverage, basis, valid_cells) \
                 if (have_ratios and rational) else np.ones(n)
-            q = basis.solve_cells(valid_cells, p, w, r, smoothing)
-            s = basis.evaluate_at_cells(q, r, valid_cells, surface)
+            q = basis.solve_cells(valid_cells, p, w, r, smoothing, denominators=denominators)
+            s = basis.evaluate_at_cells(q, r, valid_cells, surface, denominators)
             # residuals of the original samples (not the equalized ones): noise scale on the
             # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
             noise, mean_error = _tk.residual_scale(z, s, measured_cells, noise_floor)
@@ -452,8 +453,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     basis_final = basis
     rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
                                                               valid_cells)
-    q = basis_final.solve_cells(valid_cells, p, w, rr, smoothing)
-    s = basis_final.evaluate_at_cells(q, rr, valid_cells, surface)
+    q = basis_final.solve_cells(valid_cells, p, w, rr, smoothing, denominators=denominators)
+    s = basis_final.evaluate_at_cells(q, rr, valid_cells, surface, denominators)
     # back onto the grid: 0 weight, sample z (before any noise update) and False elsewhere
     shape = valid.shape
     weights_grid = np.zeros(shape)

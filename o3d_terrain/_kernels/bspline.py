@@ -546,9 +546,18 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
 # normal equations of a tensor-product fit on a grid, by rows
 
 
+@numba.njit(cache=True, inline="always")
+def _cell_denominator(basis_x, i, sx, col_d, j, p):
+    """D = sum_a Bx[i, a] col_d[j, sx + a] at cell (i, j) (col_d: R contracted along y)."""
+    acc = 0.0
+    for a in range(p + 1):
+        acc += basis_x[i, a] * col_d[j, sx + a]
+    return acc
+
+
 @numba.njit(cache=True, error_model="numpy")
 def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights,
-                      cells, n0, n1, degree, bandwidth):
+                      cells, n0, n1, degree, bandwidth, denominators):
     """Normal equations of the weighted (rational) least-squares fit over the cells ``cells``
     (flat indices into the C-ordered (m0, m1) grid, increasing): ``z`` and ``sample_weights``
     are the samples and weights of those cells, one per entry of ``cells`` (gathered: the
@@ -563,7 +572,9 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
     non-zero bx_i[a]: O(cells p^2 + rows n1 p^3) instead of O(cells p^4).
 
     With R the matrix and right-hand side are those of the rational basis R_ab N_a N_b / D:
-    diag(R) A diag(R) and R rhs, scaled in here once the sums are complete.
+    diag(R) A diag(R) and R rhs, scaled in here once the sums are complete. With R and
+    ``denominators`` of size > 0, D of every cell is written there (one per entry of
+    ``cells``), for :func:`grid_rational_cells` of the solution with the same R.
 
     Returns ``(lower, rhs, total)``: ``lower[k, d] = A[k + d, k]``, shape
     (n0 n1, bandwidth + 1) (its transpose is LAPACK's lower band storage in Fortran order, so
@@ -574,6 +585,7 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
     p = degree
     m1 = spans_y.shape[0]
     rational = rational_weights.shape[0] > 0
+    keep = rational and denominators.shape[0] > 0
     size = n0 * n1
     lower = np.zeros((size, bandwidth + 1))
     rhs = np.zeros(size)
@@ -608,14 +620,16 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
             w = sample_weights[k]
             wz = w * z[k]
             k += 1
+            j = c - first
             if not w > 0.0:
+                if keep:
+                    denominators[k - 1] = _cell_denominator(basis_x, i, sx - p, col_d, j, p)
                 continue
             total += w
-            j = c - first
             if rational:
-                acc = 0.0
-                for a in range(p + 1):
-                    acc += basis_x[i, a] * col_d[j, sx - p + a]
+                acc = _cell_denominator(basis_x, i, sx - p, col_d, j, p)
+                if keep:
+                    denominators[k - 1] = acc
                 w = w / (acc * acc)
                 v = wz / acc
             else:
@@ -771,14 +785,19 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
 
 @numba.njit(cache=True, error_model="numpy")
 def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominator, cells,
-                        out):
+                        out, cell_denominators):
     """:func:`grid_rational` at the cells ``cells`` (increasing flat indices into the C-ordered
     (m0, m1) grid) only, written into ``out`` (one value per entry of ``cells``). Same
-    operations per cell as :func:`grid_rational`, so the same values."""
+    operations per cell as :func:`grid_rational`, so the same values.
+
+    ``cell_denominators`` of size > 0 (with ``denominator``): the denominator at each cell,
+    as :func:`normal_band_cells` wrote it for the same weights (the same operations, so the
+    same values); only the numerator is then summed here."""
     p = basis_x.shape[1] - 1
     m1 = spans_y.shape[0]
     n0 = numerator.shape[0]
-    rational = denominator.shape[0] > 0
+    given = denominator.shape[0] > 0 and cell_denominators.shape[0] > 0
+    rational = denominator.shape[0] > 0 and not given
     col_n = np.zeros((m1, n0))
     col_d = np.zeros((m1, n0)) if rational else np.zeros((0, 0))
     for j in range(m1):
@@ -819,6 +838,21 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
                 acc_d += x3 * col_d[j, sx + 3]
                 out[k - 1] = acc_n / acc_d
             continue
+        if p == 3 and given:  # the numerator as above, over the given denominators
+            x0 = basis_x[i, 0]
+            x1 = basis_x[i, 1]
+            x2 = basis_x[i, 2]
+            x3 = basis_x[i, 3]
+            while k < count and cells[k] < end:
+                c = cells[k]
+                k += 1
+                j = c - first
+                acc_n = 0.0 + x0 * col_n[j, sx]
+                acc_n += x1 * col_n[j, sx + 1]
+                acc_n += x2 * col_n[j, sx + 2]
+                acc_n += x3 * col_n[j, sx + 3]
+                out[k - 1] = acc_n / cell_denominators[k - 1]
+            continue
         while k < count and cells[k] < end:
             c = cells[k]
             k += 1
@@ -829,7 +863,10 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
                 acc_n += basis_x[i, a] * col_n[j, sx + a]
                 if rational:
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
-            out[k - 1] = acc_n / acc_d if rational else acc_n
+            if given:
+                out[k - 1] = acc_n / cell_denominators[k - 1]
+            else:
+                out[k - 1] = acc_n / acc_d if rational else acc_n
     return out
 
 

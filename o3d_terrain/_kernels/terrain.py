@@ -164,6 +164,10 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
     m1 = spans_y.shape[0]
     out = np.zeros((n0, n1))
     row = np.zeros(n1)
+    # cubic case: row[held .. held + 3] in registers while the cells stay in span ``held``
+    # (-1: none), stored back when it changes (the same additions in the same order)
+    held = -1
+    r0 = r1 = r2 = r3 = 0.0
     count = cells.shape[0]
     k = 0
     while k < count:
@@ -185,11 +189,30 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
             if sy > hi:
                 hi = sy
             if p == 3:  # the loop below with a constant length (same operations)
-                for b in range(4):
-                    row[sy + b] += v * basis_y[j, b]
+                if sy != held:
+                    if held >= 0:
+                        row[held] = r0
+                        row[held + 1] = r1
+                        row[held + 2] = r2
+                        row[held + 3] = r3
+                    held = sy
+                    r0 = row[sy]
+                    r1 = row[sy + 1]
+                    r2 = row[sy + 2]
+                    r3 = row[sy + 3]
+                r0 += v * basis_y[j, 0]
+                r1 += v * basis_y[j, 1]
+                r2 += v * basis_y[j, 2]
+                r3 += v * basis_y[j, 3]
                 continue
             for b in range(p + 1):
                 row[sy + b] += v * basis_y[j, b]
+        if held >= 0:
+            row[held] = r0
+            row[held + 1] = r1
+            row[held + 2] = r2
+            row[held + 3] = r3
+            held = -1
         if hi < 0:
             continue
         sx = spans_x[i] - p
