@@ -420,10 +420,22 @@ class GridBasis:
         """Rational surface at the cells ``cells`` (increasing flat indices into the (m0, m1)
         grid) written into ``out`` (C-ordered (m0, m1), other cells left as they are); the
         values of :meth:`evaluate` there."""
+        out.ravel()[cells] = self.evaluate_at_cells(control, weights, cells)
+        return out
+
+    def evaluate_at_cells(self, control: np.ndarray, weights: np.ndarray, cells: np.ndarray,
+                          out: np.ndarray | None = None,
+                          denominators: np.ndarray | None = None) -> np.ndarray:
+        """Rational surface at the cells ``cells`` (increasing flat indices into the (m0, m1)
+        grid), one value per cell (into ``out`` when given); the values of :meth:`evaluate`
+        there. ``denominators``: the denominators at the cells that :meth:`solve_cells`
+        wrote for the same ``weights`` (reused instead of summed again)."""
+        if out is None:
+            out = np.empty(cells.shape[0])
         return _bs.grid_rational_cells(self.spans_x, self.basis_x, self.spans_y, self.basis_y,
                                        np.ascontiguousarray(weights * control),
                                        np.ascontiguousarray(weights, dtype=np.float64), cells,
-                                       out)
+                                       out, _NONE if denominators is None else denominators)
 
     def solve_tensor(self, z: np.ndarray, sample_weights: np.ndarray,
                      rational_weights: np.ndarray | None = None, smoothing: float = 0.0,
@@ -436,15 +448,28 @@ class GridBasis:
         with rational evaluation. ``cells``: increasing flat indices of the cells that may have
         a weight > 0 (the others must have weight <= 0); None = found here.
         """
-        z = np.ascontiguousarray(z, dtype=np.float64)
-        sample_weights = np.ascontiguousarray(sample_weights, dtype=np.float64)
+        z = np.ascontiguousarray(z, dtype=np.float64).ravel()
+        sample_weights = np.ascontiguousarray(sample_weights, dtype=np.float64).ravel()
         if cells is None:
             cells = np.flatnonzero(sample_weights > 0)
+        return self.solve_cells(cells, z[cells], sample_weights[cells], rational_weights,
+                                smoothing, ridge)
+
+    def solve_cells(self, cells: np.ndarray, z: np.ndarray, sample_weights: np.ndarray,
+                    rational_weights: np.ndarray | None = None, smoothing: float = 0.0,
+                    ridge: float = 1e-9, denominators: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`solve_tensor` from the samples ``z`` and weights ``sample_weights`` of the
+        cells ``cells`` only (increasing flat indices; 1-D arrays, one entry per cell; every
+        other cell counts as weight 0). ``denominators`` (with ``rational_weights``): a
+        float64 array of one entry per cell that receives the rational denominator at each
+        cell, for :meth:`evaluate_at_cells` with the same weights."""
         r_in = np.zeros((0, 0)) if rational_weights is None else \
             np.ascontiguousarray(rational_weights, dtype=np.float64)
         lower, rhs, weight_sum = _bs.normal_band_cells(
-            self.spans_x, self.basis_x, self.spans_y, self.basis_y, z, sample_weights, r_in,
-            cells, self.n0, self.n1, self.degree, self.bandwidth)
+            self.spans_x, self.basis_x, self.spans_y, self.basis_y,
+            np.ascontiguousarray(z, dtype=np.float64),
+            np.ascontiguousarray(sample_weights, dtype=np.float64), r_in, cells, self.n0,
+            self.n1, self.degree, self.bandwidth, _NONE if denominators is None else denominators)
         band = lower.T  # LAPACK lower band storage, Fortran order: no copy for dpbsv
         diagonal = np.ascontiguousarray(band[0])  # numpy's mean of the strided row: ~20 us
         scale = max(float(np.add.reduce(diagonal)) / diagonal.size, 1e-12)  # = mean()
@@ -494,6 +519,7 @@ def _solve_band(band: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 _DPBSV = get_lapack_funcs("pbsv", dtype=np.float64)
+_NONE = np.zeros(0)  # an empty optional array argument of the kernels
 
 
 def _greville(knots: np.ndarray, n_ctrl: int, degree: int) -> np.ndarray:

@@ -383,28 +383,40 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     layouts = _layouts(n_max, degree)
     valid = base > 0
     valid_cells = np.flatnonzero(valid)
-    valid_values = valid.astype(np.float64)
-    measured_cells = np.flatnonzero(measured)
+    # the passes work on vectors of the valid cells' values (gathered once, scattered back at
+    # the end): the per-cell kernels then read small contiguous arrays instead of (m0, m1)
+    # grids, which stay cached across the passes (same values, same order of operations)
+    count = valid_cells.size
+    cells = np.arange(count)  # the vectors' indices, for the kernels' cell lists
+    z_grid = z_start = np.ascontiguousarray(z, dtype=np.float64)
+    z = z_grid.ravel()[valid_cells]
+    base_cells = base.ravel()[valid_cells]
+    measured_cells = np.flatnonzero(measured.ravel()[valid_cells])  # positions in the vectors
     use_prior = prior is not None
-    compact, prior_spread = prior if use_prior else (np.zeros((1, 1), bool), np.zeros((1, 1)))
+    if use_prior:
+        compact = np.ascontiguousarray(prior[0]).ravel()[valid_cells]
+        prior_spread = np.ascontiguousarray(prior[1], dtype=np.float64).ravel()[valid_cells]
+    else:
+        compact, prior_spread = np.zeros(1, bool), np.zeros(1)
     p = z  # read-only until the first pass writes into the buffers below
-    w = base
-    # two buffers per product, alternating between passes (the previous pass stays readable);
-    # cells outside valid_cells keep weight 0, ratio 0, sample z and False
-    weight_buffers = (np.zeros(z.shape), np.zeros(z.shape))
+    w = base_cells
+    # two buffers per product, alternating between passes (the previous pass stays readable)
+    weight_buffers = (np.zeros(count), np.zeros(count))
     sample_buffers = (z.copy(), z.copy())
-    ratios = np.zeros(z.shape)  # W / base of the last pass, remapped onto each layout
-    surface = np.zeros(z.shape)  # the surface at the valid cells (0 elsewhere)
+    ratios = np.zeros(count)  # W / base of the last pass, remapped onto each layout
+    surface = np.zeros(count)  # the surface at the valid cells
+    denominators = np.zeros(count)  # its denominator (from the solve's assembly)
+    ones = np.ones(count)  # the remap denominator's values (the valid mask)
     have_ratios = False
     records = []
-    equalized = np.zeros(z.shape, bool)
+    equalized = np.zeros(count, bool)
     iteration = 0
     noise = noise_floor
     cell_sigma = None  # per-cell noise scale of the sensor model, from the second layout on
-    no_sigma = np.zeros((1, 1))
+    no_sigma = np.zeros(1)
     for level, n in enumerate(layouts):
         basis = GridBasis(xl, yl, n, degree, region_local)
-        coverage = _project(basis, valid_values, valid_cells)  # remap denominator, per layout
+        coverage = _project(basis, ones, valid_cells)  # remap denominator, per layout
         final = level == len(layouts) - 1
         passes = 4 if final else 2
         previous_w = w
@@ -412,8 +424,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             iteration += 1
             r = _control_weights(ratios, coverage, basis, valid_cells) \
                 if (have_ratios and rational) else np.ones(n)
-            q = basis.solve_tensor(p, w, r, smoothing, cells=valid_cells)
-            s = basis.evaluate_cells(q, r, valid_cells, surface)
+            q = basis.solve_cells(valid_cells, p, w, r, smoothing, denominators=denominators)
+            s = basis.evaluate_at_cells(q, r, valid_cells, surface, denominators)
             # residuals of the original samples (not the equalized ones): noise scale on the
             # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
             noise, mean_error = _tk.residual_scale(z, s, measured_cells, noise_floor)
@@ -421,7 +433,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             w_next = weight_buffers[iteration % 2]
             p_next = sample_buffers[iteration % 2]
             moved, change = _tk.robust_pass(
-                z, s, base, valid_cells, compact, use_prior, prior_spread, noise,
+                z, s, base_cells, cells, compact, use_prior, prior_spread, noise,
                 no_sigma if cell_sigma is None else cell_sigma, cell_sigma is not None,
                 above_k, below_k, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
                 equalized)
@@ -435,14 +447,26 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
                 break
         if grid_noise is not None and not final:
             # the sensor's noise under this layout's surface: samples and scales of the next
-            z, cell_sigma = _noise_update(grid_noise, basis.evaluate(q, r), z, z0, measured)
+            z_grid, sigma = _noise_update(grid_noise, basis.evaluate(q, r), z_grid, z0, measured)
+            z = np.ascontiguousarray(z_grid).ravel()[valid_cells]
+            cell_sigma = np.ascontiguousarray(sigma, dtype=np.float64).ravel()[valid_cells]
     basis_final = basis
     rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
                                                               valid_cells)
-    q = basis_final.solve_tensor(p, w, rr, smoothing, cells=valid_cells)
-    s = basis_final.evaluate_cells(q, rr, valid_cells, surface)
-    outliers = valid & (z - s > above_k * noise)
-    return q, rr, basis_final, w, p, equalized, outliers, records, noise
+    q = basis_final.solve_cells(valid_cells, p, w, rr, smoothing, denominators=denominators)
+    s = basis_final.evaluate_at_cells(q, rr, valid_cells, surface, denominators)
+    # back onto the grid: 0 weight, sample z (before any noise update) and False elsewhere
+    shape = valid.shape
+    weights_grid = np.zeros(shape)
+    weights_grid.ravel()[valid_cells] = w
+    samples_grid = np.array(z_start, dtype=np.float64, order="C")
+    samples_grid.ravel()[valid_cells] = p
+    equalized_grid = np.zeros(shape, bool)
+    equalized_grid.ravel()[valid_cells] = equalized
+    outliers = np.zeros(shape, bool)
+    outliers.ravel()[valid_cells] = z - s > above_k * noise
+    return q, rr, basis_final, weights_grid, samples_grid, equalized_grid, outliers, records, \
+        noise
 
 
 def _noise_update(grid_noise, surface, z, z0, measured):
@@ -455,14 +479,15 @@ def _noise_update(grid_noise, surface, z, z0, measured):
 
 def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis,
                      cells: np.ndarray) -> np.ndarray:
-    """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (zero outside ``cells``),
-    with the projection of the valid mask (``coverage``) computed once per layout."""
+    """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (one per cell of ``cells``,
+    zero elsewhere), with the projection of the valid mask (``coverage``) computed once per
+    layout."""
     num = _project(basis, ratios, cells)
     return 0.5 + 0.5 * np.where(coverage > 1e-9, num / np.maximum(coverage, 1e-12), 1.0)
 
 
 def _project(basis: GridBasis, values: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Bx^T V By (:meth:`GridBasis.project`) over the cells ``cells`` (flat indices), row by
-    row."""
+    """Bx^T V By (:meth:`GridBasis.project`) over the cells ``cells`` (flat indices), V given
+    at those cells (``values``, one per cell; zero elsewhere), row by row."""
     return _tk.grid_project_cells(basis.spans_x, basis.basis_x, basis.spans_y, basis.basis_y,
                                   values, cells, basis.n0, basis.n1)

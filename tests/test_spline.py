@@ -194,6 +194,16 @@ def test_tensor_fit_over_sparse_cells_equals_dense_weighted_least_squares():
     full = basis.evaluate(q, r)
     np.testing.assert_array_equal(out.ravel()[cells], full.ravel()[cells])
     assert np.all(np.delete(out.ravel(), cells) == -7.0)
+    # the per-cell forms the robust fit uses: gathered samples and weights, values per cell
+    np.testing.assert_array_equal(
+        basis.solve_cells(cells, z.ravel()[cells], w.ravel()[cells], r, ridge=1e-14), q)
+    np.testing.assert_array_equal(basis.evaluate_at_cells(q, r, cells), full.ravel()[cells])
+    # the denominators the assembly wrote, reused by the evaluation with the same R
+    denominators = np.full(cells.size, np.nan)
+    basis.solve_cells(cells, z.ravel()[cells], w.ravel()[cells], r, ridge=1e-14,
+                      denominators=denominators)
+    np.testing.assert_array_equal(basis.evaluate_at_cells(q, r, cells, None, denominators),
+                                  full.ravel()[cells])
     np.testing.assert_allclose(full, TerrainSurface(3, basis.knots_x, basis.knots_y, q, r)(xx, yy),
                                atol=1e-9)
 

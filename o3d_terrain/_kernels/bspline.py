@@ -546,12 +546,22 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
 # normal equations of a tensor-product fit on a grid, by rows
 
 
+@numba.njit(cache=True, inline="always")
+def _cell_denominator(basis_x, i, sx, col_d, j, p):
+    """D = sum_a Bx[i, a] col_d[j, sx + a] at cell (i, j) (col_d: R contracted along y)."""
+    acc = 0.0
+    for a in range(p + 1):
+        acc += basis_x[i, a] * col_d[j, sx + a]
+    return acc
+
+
 @numba.njit(cache=True, error_model="numpy")
 def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights,
-                      cells, n0, n1, degree, bandwidth):
-    """Normal equations of the weighted (rational) least-squares fit, over the cells ``cells``
-    only (flat indices into the C-ordered (m0, m1) grids, increasing; every other cell must
-    have a sample weight <= 0).
+                      cells, n0, n1, degree, bandwidth, denominators):
+    """Normal equations of the weighted (rational) least-squares fit over the cells ``cells``
+    (flat indices into the C-ordered (m0, m1) grid, increasing): ``z`` and ``sample_weights``
+    are the samples and weights of those cells, one per entry of ``cells`` (gathered: the
+    arrays the loop reads stay small and contiguous).
 
     Per cell: w = sample weight (cells with w <= 0 or NaN add nothing), v = w z; with
     control-point weights R (``rational_weights`` of size > 0) the rational basis divides by
@@ -562,7 +572,9 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
     non-zero bx_i[a]: O(cells p^2 + rows n1 p^3) instead of O(cells p^4).
 
     With R the matrix and right-hand side are those of the rational basis R_ab N_a N_b / D:
-    diag(R) A diag(R) and R rhs, scaled in here once the sums are complete.
+    diag(R) A diag(R) and R rhs, scaled in here once the sums are complete. With R and
+    ``denominators`` of size > 0, D of every cell is written there (one per entry of
+    ``cells``), for :func:`grid_rational_cells` of the solution with the same R.
 
     Returns ``(lower, rhs, total)``: ``lower[k, d] = A[k + d, k]``, shape
     (n0 n1, bandwidth + 1) (its transpose is LAPACK's lower band storage in Fortran order, so
@@ -573,6 +585,7 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
     p = degree
     m1 = spans_y.shape[0]
     rational = rational_weights.shape[0] > 0
+    keep = rational and denominators.shape[0] > 0
     size = n0 * n1
     lower = np.zeros((size, bandwidth + 1))
     rhs = np.zeros(size)
@@ -586,11 +599,13 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                 for b in range(p + 1):
                     acc += basis_y[j, b] * rational_weights[a, sy + b]
                 col_d[j, a] = acc
-    zf = z.ravel()
-    wf = sample_weights.ravel()
     t = np.zeros((n1, p + 1))  # t[b, d] = T_i[b, b + d]
     tf = np.zeros((n1, 2 * p + 1))
     r = np.zeros(n1)
+    # cubic case: the sums of the span ``held`` (-1: none) in registers
+    held = -1
+    r0 = r1 = r2 = r3 = 0.0
+    t00 = t01 = t02 = t03 = t10 = t11 = t12 = t20 = t21 = t30 = 0.0
     count = cells.shape[0]
     k = 0
     while k < count:
@@ -602,17 +617,19 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
         b_hi = -1
         while k < count and cells[k] < end:
             c = cells[k]
+            w = sample_weights[k]
+            wz = w * z[k]
             k += 1
-            w = wf[c]
+            j = c - first
             if not w > 0.0:
+                if keep:
+                    denominators[k - 1] = _cell_denominator(basis_x, i, sx - p, col_d, j, p)
                 continue
             total += w
-            j = c - first
-            wz = w * zf[c]
             if rational:
-                acc = 0.0
-                for a in range(p + 1):
-                    acc += basis_x[i, a] * col_d[j, sx - p + a]
+                acc = _cell_denominator(basis_x, i, sx - p, col_d, j, p)
+                if keep:
+                    denominators[k - 1] = acc
                 w = w / (acc * acc)
                 v = wz / acc
             else:
@@ -628,28 +645,62 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
             if sy > b_hi:
                 b_hi = sy
             if p == 3:  # the loop below unrolled for the cubic case (same operations)
+                if base != held:
+                    # the 14 sums of this span in registers while the next cells of the row
+                    # fall in the same span: loaded here, stored back when the span changes
+                    # (the same additions in the same order as in place)
+                    if held >= 0:
+                        r[held] = r0
+                        r[held + 1] = r1
+                        r[held + 2] = r2
+                        r[held + 3] = r3
+                        t[held, 0] = t00
+                        t[held, 1] = t01
+                        t[held, 2] = t02
+                        t[held, 3] = t03
+                        t[held + 1, 0] = t10
+                        t[held + 1, 1] = t11
+                        t[held + 1, 2] = t12
+                        t[held + 2, 0] = t20
+                        t[held + 2, 1] = t21
+                        t[held + 3, 0] = t30
+                    held = base
+                    r0 = r[base]
+                    r1 = r[base + 1]
+                    r2 = r[base + 2]
+                    r3 = r[base + 3]
+                    t00 = t[base, 0]
+                    t01 = t[base, 1]
+                    t02 = t[base, 2]
+                    t03 = t[base, 3]
+                    t10 = t[base + 1, 0]
+                    t11 = t[base + 1, 1]
+                    t12 = t[base + 1, 2]
+                    t20 = t[base + 2, 0]
+                    t21 = t[base + 2, 1]
+                    t30 = t[base + 3, 0]
                 y0 = basis_y[j, 0]
                 y1 = basis_y[j, 1]
                 y2 = basis_y[j, 2]
                 y3 = basis_y[j, 3]
-                r[base] += v * y0
-                r[base + 1] += v * y1
-                r[base + 2] += v * y2
-                r[base + 3] += v * y3
+                r0 += v * y0
+                r1 += v * y1
+                r2 += v * y2
+                r3 += v * y3
                 wb = w * y0
-                t[base, 0] += wb * y0
-                t[base, 1] += wb * y1
-                t[base, 2] += wb * y2
-                t[base, 3] += wb * y3
+                t00 += wb * y0
+                t01 += wb * y1
+                t02 += wb * y2
+                t03 += wb * y3
                 wb = w * y1
-                t[base + 1, 0] += wb * y1
-                t[base + 1, 1] += wb * y2
-                t[base + 1, 2] += wb * y3
+                t10 += wb * y1
+                t11 += wb * y2
+                t12 += wb * y3
                 wb = w * y2
-                t[base + 2, 0] += wb * y2
-                t[base + 2, 1] += wb * y3
+                t20 += wb * y2
+                t21 += wb * y3
                 wb = w * y3
-                t[base + 3, 0] += wb * y3
+                t30 += wb * y3
                 continue
             for b in range(p + 1):
                 yb = basis_y[j, b]
@@ -657,6 +708,22 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                 wb = w * yb
                 for d in range(p + 1 - b):
                     t[base + b, d] += wb * basis_y[j, b + d]
+        if held >= 0:
+            r[held] = r0
+            r[held + 1] = r1
+            r[held + 2] = r2
+            r[held + 3] = r3
+            t[held, 0] = t00
+            t[held, 1] = t01
+            t[held, 2] = t02
+            t[held, 3] = t03
+            t[held + 1, 0] = t10
+            t[held + 1, 1] = t11
+            t[held + 1, 2] = t12
+            t[held + 2, 0] = t20
+            t[held + 2, 1] = t21
+            t[held + 3, 0] = t30
+            held = -1
         if b_hi < 0:
             continue
         # the full symmetric band of T_i: tf[b, p + e] = T_i[b, b + e], e = -p .. p (zero
@@ -718,14 +785,19 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
 
 @numba.njit(cache=True, error_model="numpy")
 def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominator, cells,
-                        out):
-    """:func:`grid_rational` written into ``out`` (C-ordered (m0, m1)) at the cells ``cells``
-    (flat indices) only; other cells of ``out`` are left as they are. Same operations per
-    cell as :func:`grid_rational`, so the same values."""
+                        out, cell_denominators):
+    """:func:`grid_rational` at the cells ``cells`` (increasing flat indices into the C-ordered
+    (m0, m1) grid) only, written into ``out`` (one value per entry of ``cells``). Same
+    operations per cell as :func:`grid_rational`, so the same values.
+
+    ``cell_denominators`` of size > 0 (with ``denominator``): the denominator at each cell,
+    as :func:`normal_band_cells` wrote it for the same weights (the same operations, so the
+    same values); only the numerator is then summed here."""
     p = basis_x.shape[1] - 1
     m1 = spans_y.shape[0]
     n0 = numerator.shape[0]
-    rational = denominator.shape[0] > 0
+    given = denominator.shape[0] > 0 and cell_denominators.shape[0] > 0
+    rational = denominator.shape[0] > 0 and not given
     col_n = np.zeros((m1, n0))
     col_d = np.zeros((m1, n0)) if rational else np.zeros((0, 0))
     for j in range(m1):
@@ -740,7 +812,6 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
             col_n[j, a] = acc_n
             if rational:
                 col_d[j, a] = acc_d
-    of = out.ravel()
     count = cells.shape[0]
     k = 0
     while k < count:
@@ -765,7 +836,22 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
                 acc_d += x2 * col_d[j, sx + 2]
                 acc_n += x3 * col_n[j, sx + 3]
                 acc_d += x3 * col_d[j, sx + 3]
-                of[c] = acc_n / acc_d
+                out[k - 1] = acc_n / acc_d
+            continue
+        if p == 3 and given:  # the numerator as above, over the given denominators
+            x0 = basis_x[i, 0]
+            x1 = basis_x[i, 1]
+            x2 = basis_x[i, 2]
+            x3 = basis_x[i, 3]
+            while k < count and cells[k] < end:
+                c = cells[k]
+                k += 1
+                j = c - first
+                acc_n = 0.0 + x0 * col_n[j, sx]
+                acc_n += x1 * col_n[j, sx + 1]
+                acc_n += x2 * col_n[j, sx + 2]
+                acc_n += x3 * col_n[j, sx + 3]
+                out[k - 1] = acc_n / cell_denominators[k - 1]
             continue
         while k < count and cells[k] < end:
             c = cells[k]
@@ -777,7 +863,10 @@ def grid_rational_cells(spans_x, basis_x, spans_y, basis_y, numerator, denominat
                 acc_n += basis_x[i, a] * col_n[j, sx + a]
                 if rational:
                     acc_d += basis_x[i, a] * col_d[j, sx + a]
-            of[c] = acc_n / acc_d if rational else acc_n
+            if given:
+                out[k - 1] = acc_n / cell_denominators[k - 1]
+            else:
+                out[k - 1] = acc_n / acc_d if rational else acc_n
     return out
 
 

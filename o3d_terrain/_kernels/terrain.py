@@ -154,16 +154,20 @@ def robust_inputs(state, samples, mean, compact, z0, noise_floor, filled_weight,
 
 @numba.njit(cache=True)
 def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1):
-    """(Bx^T V By)[a, b] like :func:`grid_project` over the cells ``cells`` only (flat
-    indices into the C-ordered (m0, m1) ``values``, increasing; V = 0 elsewhere), contracted
+    """(Bx^T V By)[a, b] like :func:`grid_project` over the cells ``cells`` only (increasing
+    flat indices into the C-ordered (m0, m1) grid; V = 0 elsewhere), ``values`` holding V of
+    those cells (one per entry of ``cells``), contracted
     along y once per grid row (r_i = sum_j V[i, j] By[j, :], then out[a, :] += Bx[i, a] r_i):
     O(cells p + rows n1 p) instead of O(m0 m1 p^2). Same values up to rounding (another
     summation order)."""
     p = basis_x.shape[1] - 1
     m1 = spans_y.shape[0]
-    vf = values.ravel()
     out = np.zeros((n0, n1))
     row = np.zeros(n1)
+    # cubic case: row[held .. held + 3] in registers while the cells stay in span ``held``
+    # (-1: none), stored back when it changes (the same additions in the same order)
+    held = -1
+    r0 = r1 = r2 = r3 = 0.0
     count = cells.shape[0]
     k = 0
     while k < count:
@@ -174,8 +178,8 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
         hi = -1
         while k < count and cells[k] < end:
             c = cells[k]
+            v = values[k]
             k += 1
-            v = vf[c]
             if v == 0.0:
                 continue
             j = c - first
@@ -185,11 +189,30 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
             if sy > hi:
                 hi = sy
             if p == 3:  # the loop below with a constant length (same operations)
-                for b in range(4):
-                    row[sy + b] += v * basis_y[j, b]
+                if sy != held:
+                    if held >= 0:
+                        row[held] = r0
+                        row[held + 1] = r1
+                        row[held + 2] = r2
+                        row[held + 3] = r3
+                    held = sy
+                    r0 = row[sy]
+                    r1 = row[sy + 1]
+                    r2 = row[sy + 2]
+                    r3 = row[sy + 3]
+                r0 += v * basis_y[j, 0]
+                r1 += v * basis_y[j, 1]
+                r2 += v * basis_y[j, 2]
+                r3 += v * basis_y[j, 3]
                 continue
             for b in range(p + 1):
                 row[sy + b] += v * basis_y[j, b]
+        if held >= 0:
+            row[held] = r0
+            row[held + 1] = r1
+            row[held + 2] = r2
+            row[held + 3] = r3
+            held = -1
         if hi < 0:
             continue
         sx = spans_x[i] - p
@@ -205,7 +228,8 @@ def grid_project_cells(spans_x, basis_x, spans_y, basis_y, values, cells, n0, n1
 @numba.njit(cache=True)
 def residual_scale(z, surface, measured_cells, floor):
     """Noise scale and mean |residual| over the cells ``measured_cells`` (flat indices into
-    the C-ordered 2-D arrays), residual r = z - surface.
+    the C-ordered arrays ``z`` and ``surface``: grids, or the fit's per-cell vectors),
+    residual r = z - surface.
 
     Scale: 1.4826 * median |r| over the residuals r <= 0 (over all of them when fewer than 3
     are <= 0), at least ``floor``. The median is exact (selection over the gathered values),
@@ -243,15 +267,17 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
     """Sample weights, control-point weight ratios and equalized samples of one pass, written
     into ``weights``, ``ratios``, ``samples`` and ``equalized`` at the cells ``valid_cells``
     (flat indices, C order, of the cells with base > 0; the caller keeps weight 0, ratio 0,
-    sample z and False on every other cell). All arrays are C-contiguous (m0, m1).
+    sample z and False on every other cell). All arrays are C-contiguous and indexed alike:
+    (m0, m1) grids, or (as the fit passes them) vectors of the valid cells' values with
+    ``valid_cells`` = 0 .. n - 1, which keeps the cells' data small and contiguous.
 
     Noise scale of a cell: ``noise``, or with ``use_cell_sigma`` (a range-dependent sensor
-    noise model) sqrt(noise^2 + cell_sigma[c]^2), cell_sigma (m0, m1) in metres; thresholds
+    noise model) sqrt(noise^2 + cell_sigma[c]^2), cell_sigma in metres; thresholds
     th_above = above_k * scale, th_below = below_k * scale.
     On a valid cell, r = z - surface: t = r / th_above above the surface, -r / th_below
     below; weight w = base / (1 + t^4) (the bounded form of Broggi et al. eq. 3 with
     alpha = 4). With ``use_prior``, compact cells above the surface get
-    t = r / (th_above + prior_spread[c]) (a per-cell widening, (m0, m1); read only at compact
+    t = r / (th_above + prior_spread[c]) (a per-cell widening; read only at compact
     cells). Ratio = w / base.
     Equalization: cells (not compact ones with the prior) with z > surface + clip_k * th_above
     are clipped onto that limit; the others keep z.
