@@ -19,7 +19,10 @@ cells is then well beyond its own sampling error), the block's points get that t
 at most :data:`MISFIT_HIGH`, on both sides of the surface (terrain the surface undercuts on a
 ridge and terrain below it in a gully), and so do its 8 neighbouring blocks: a surface that
 bridges a gully also undercuts the ridges beside it, whose cells are all above the surface and
-so never measure a misfit themselves. Elsewhere the global threshold is unchanged.
+so never measure a misfit themselves. In widened blocks the threshold also grows with the
+surface's slope, by half a control spacing x tan(slope) over the global one (at most
+:data:`MISFIT_HIGH`): the detail the surface misses lies within about half a spacing of where
+the data pin it. Elsewhere the global threshold is unchanged.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numba
 import numpy as np
 
 __all__ = ["misfit_thresholds", "block_size", "MISFIT_FACTOR", "MISFIT_HIGH", "MISFIT_CELL",
-           "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS"]
+           "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS", "MISFIT_REACH"]
 
 #: threshold = this many robust misfit scales (the factor of the global automatic threshold)
 MISFIT_FACTOR = 3.5
@@ -43,6 +46,9 @@ MISFIT_BLOCK = 2.0
 MISFIT_SIGNIFICANT = 2.0
 #: fewest cells below the surface that measure a block's misfit
 MISFIT_MIN_CELLS = 20
+#: in widened blocks, the threshold grows by this many control spacings x tan(slope): detail
+#: the surface cannot follow lies up to half a spacing from where the data pin it
+MISFIT_REACH = 0.5
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -119,14 +125,22 @@ def block_size(surface) -> float:
 def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: float, *,
                       block: float, factor: float = MISFIT_FACTOR, high: float = MISFIT_HIGH,
                       cell: float = MISFIT_CELL, significant: float = MISFIT_SIGNIFICANT,
-                      min_cells: int = MISFIT_MIN_CELLS) -> np.ndarray:
+                      min_cells: int = MISFIT_MIN_CELLS, grade=None,
+                      reach: float | None = None) -> np.ndarray:
     """Per-point thresholds (N,), the global ``threshold`` widened by the local misfit.
 
     Per block of side ``block`` (m): s = 1.4826 x the median depth of the ``cell`` x ``cell``
     cells whose mean height (``heights`` are z - S; points higher than ``high`` left out) is
     below the surface, t = factor x s; where t >= significant x threshold and at least ``min_cells``
     cells count, the points of the block and of its 8 neighbours get min(t, high) (the largest
-    such), elsewhere ``threshold``."""
+    such), elsewhere ``threshold``.
+
+    grade: optional callable (x, y) -> |grad S| (the surface's tangent of slope) at the points;
+    with it, the points of widened blocks get at least min(threshold + ``reach`` x |grad S|,
+    ``high``): terrain detail the surface cannot follow lies up to ``reach`` (default half a
+    control spacing, :data:`MISFIT_REACH` x block / :data:`MISFIT_BLOCK`) away from where the
+    data pin the surface, so on a slope it departs from the surface by up to reach x
+    tan(slope). Points of blocks that were not widened keep ``threshold``."""
     p = np.asarray(positions, dtype=np.float64)
     h = np.ascontiguousarray(heights, dtype=np.float64)
     out = np.full(len(p), float(threshold))
@@ -154,4 +168,12 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     bx = np.clip(((x[finite] - x_min) / (cell * per_block)).astype(np.int64), 0, nbx - 1)
     by = np.clip(((y[finite] - y_min) / (cell * per_block)).astype(np.int64), 0, nby - 1)
     out[finite] = local[bx * nby + by]
+    if grade is not None:
+        if reach is None:
+            reach = MISFIT_REACH * block / MISFIT_BLOCK
+        wide = np.flatnonzero(out > threshold)
+        if wide.size:
+            g = np.asarray(grade(x[wide], y[wide]), dtype=np.float64)
+            g = np.where(np.isfinite(g), g, 0.0)
+            out[wide] = np.maximum(out[wide], np.minimum(threshold + reach * g, high))
     return out

@@ -117,7 +117,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     if threshold is None:
         threshold = auto_threshold(h)
         if misfit and isinstance(surface, TerrainSurface):
-            local = misfit_thresholds(p, h, threshold, block=block_size(surface))
+            local = misfit_thresholds(p, h, threshold, block=block_size(surface),
+                                      grade=lambda x, y: np.hypot(*surface.gradient(x, y)))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:

@@ -65,3 +65,32 @@ def test_widen_labels_changes_only_the_widened_points():
     labels = np.array([O, O, B, B, O, B], np.uint8)  # as if below_threshold were 0.1
     widen_labels(labels, heights, local, 0.2)
     np.testing.assert_array_equal(labels, [O, T, B, T, O, B])
+
+
+def test_slope_term_widens_only_blocks_the_misfit_widened(rng):
+    """The grade term (threshold + reach x tan(slope), at most MISFIT_HIGH) applies only where a
+    block's misfit widened the threshold: on a flat cloud the surface follows, a steep grade
+    changes nothing; on a 35° slope with ridges the surface bridges (exact heights: the plane
+    under the crests), more ground lies within the thresholds and 2.5 m blocks stay above them."""
+    cloud, _ = _flat_with_obstacles(rng)
+    steep = lambda x, y: np.full(len(x), 1.0)  # noqa: E731
+    t = misfit_thresholds(cloud, cloud[:, 2], 0.1, block=10.0, grade=steep)
+    assert np.all(t == 0.1)
+
+    n = int(240 * 200 * 0.7)
+    x, y = rng.uniform(0, 240, n), rng.uniform(0, 200, n)
+    wave = np.sin(2 * np.pi * y / 10.0)  # gullies and sharp crests (up to 1.2 m) 10 m apart
+    h = 0.3 * wave + 0.9 * np.maximum(wave, 0.0) ** 8 + rng.normal(0, 0.03, n)  # above z = 0.7 x
+    block = ((x % 60) < 4) & ((y % 50) < 4)
+    h[block] += 2.5
+    positions = np.column_stack([x, y, 0.7 * x + h])
+    grade = lambda px, py: np.full(len(px), 0.7)  # noqa: E731
+    plain = misfit_thresholds(positions, h, 0.1, block=12.0)
+    sloped = misfit_thresholds(positions, h, 0.1, block=12.0, grade=grade)
+    wide = plain > 0.1
+    assert wide.any() and np.all(sloped[~wide] == 0.1)
+    # half a control spacing (3 m) x 0.7 = 2.1 m over the global threshold, capped at MISFIT_HIGH
+    np.testing.assert_allclose(sloped[wide], np.maximum(plain[wide], MISFIT_HIGH))
+    ground = ~block
+    assert (np.abs(h[ground]) <= sloped[ground]).mean() > (np.abs(h[ground]) <= plain[ground]).mean()
+    assert np.all(h[block] > sloped[block])
