@@ -517,7 +517,6 @@ def traversability_cost(surface, cloud: Any = None, *,
     x0, y0, _ = surface.origin
     slope_only = cloud is None
     if slot is None:
-        slot = np.full((nx, ny), -1, np.int32)
         count = rn = cell_i = cell_j = np.zeros(0, np.int32)
         highest = rs2 = np.zeros(0)
     if slope_only:
@@ -531,16 +530,13 @@ def traversability_cost(surface, cloud: Any = None, *,
                                     surface.knots_y, surface.degree, surface.control_points,
                                     surface.weights, 1e-9)
     slope, step, rough, cost, lethal, state = _k.cost_cells(
-        slot, entry_slope, count, highest, rn, rs2, occupied, profile.max_slope_deg,
+        cell_i, cell_j, entry_slope, count, highest, rn, rs2, occupied, profile.max_slope_deg,
         lethal_step, profile.max_roughness, w[0], w[1], w[2], float(unknown_cost), FREE,
-        UNKNOWN, slope_only, slope_grid)
+        UNKNOWN, LETHAL, slope_only, slope_grid)
 
-    # inflation by the footprint
-    if lethal.any():
-        _k.inflate(cost, state, lethal, float(cell_size), profile.inscribed_radius,
-                   profile.circumscribed_radius, float(inflation_scale), INSCRIBED, LETHAL)
-    else:
-        np.minimum(cost, 0.99, out=cost)
+    # inflation by the footprint (the cells near lethal ones)
+    _k.inflate(cost, state, lethal, float(cell_size), profile.inscribed_radius,
+               profile.circumscribed_radius, float(inflation_scale), INSCRIBED)
     options = {"cell_size": float(cell_size), "unknown_cost": float(unknown_cost),
                "weights": list(w), "inflation_scale": float(inflation_scale),
                "fill_obstacle_boxes": bool(fill_obstacle_boxes)}
