@@ -151,13 +151,12 @@ def quantize_points(
             f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
-    cells = _grid.cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny)
     if not (isinstance(layer, (int, float, np.integer, np.floating)) and math.isfinite(layer)
             and layer >= 0):
         raise InputError(f"layer must be a finite number of metres >= 0, got {layer!r}")
     layer = float(layer)
     height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum = \
-        _grid.quantize(cells, z, nx, ny, min_points, fill_empty, layer)
+        _grid.quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer)
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
                       highest, mean, int(nonfinite), int(outside), layer,
                       layer_count if layer else None, layer_sum if layer else None)
