@@ -448,7 +448,8 @@ def span_power_basis(knots, degree, n_ctrl, inv_width):
 def cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy):
     """The numerator A and the denominator D of a cubic rational surface on every span pair
     as bicubic polynomials in the spans' local (u, v) (:func:`span_power_basis`): flat, 32
-    per span pair (sx - 3) * n_spans_y + (sy - 3), A's u^m v^n at 4 m + n, D's at 16 + 4 m + n."""
+    per span pair (sx - 3) * n_spans_y + (sy - 3), the coefficient of u^m v^n of A at
+    8 n + m and of D at 8 n + 4 + m (the 8 polynomials in v of a point are then contiguous)."""
     n0, n1 = control.shape
     px = span_power_basis(knots_x, 3, n0, inv_wx)
     py = span_power_basis(knots_y, 3, n1, inv_wy)
@@ -472,22 +473,28 @@ def cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy):
                 for m in range(4):
                     c = px[i, a, m]
                     for n in range(4):
-                        out[base + 4 * m + n] += c * rows[i + a, j, n]
-                        out[base + 16 + 4 * m + n] += c * rows[i + a, j, 4 + n]
+                        out[base + 8 * n + m] += c * rows[i + a, j, n]
+                        out[base + 8 * n + 4 + m] += c * rows[i + a, j, 4 + n]
     return out
 
 
 @numba.njit(cache=True, inline="always")
-def _bicubic(c, base, u, v):
-    """sum_mn c[base + 4 m + n] u^m v^n by Horner (v inside, then u)."""
-    r3 = ((c[base + 15] * v + c[base + 14]) * v + c[base + 13]) * v + c[base + 12]
-    r2 = ((c[base + 11] * v + c[base + 10]) * v + c[base + 9]) * v + c[base + 8]
-    r1 = ((c[base + 7] * v + c[base + 6]) * v + c[base + 5]) * v + c[base + 4]
-    r0 = ((c[base + 3] * v + c[base + 2]) * v + c[base + 1]) * v + c[base]
-    return ((r3 * u + r2) * u + r1) * u + r0
+def _cubic_span_ratio(c, b, u, v):
+    """A / D at local (u, v) of a span pair whose coefficients start at ``c[b]``
+    (:func:`cubic_span_coefficients`): the 8 polynomials in v (A's and D's rows u^0..u^3, the
+    same operations on contiguous coefficients), then A and D in u, all by Horner."""
+    r0 = ((c[b + 24] * v + c[b + 16]) * v + c[b + 8]) * v + c[b]
+    r1 = ((c[b + 25] * v + c[b + 17]) * v + c[b + 9]) * v + c[b + 1]
+    r2 = ((c[b + 26] * v + c[b + 18]) * v + c[b + 10]) * v + c[b + 2]
+    r3 = ((c[b + 27] * v + c[b + 19]) * v + c[b + 11]) * v + c[b + 3]
+    d0 = ((c[b + 28] * v + c[b + 20]) * v + c[b + 12]) * v + c[b + 4]
+    d1 = ((c[b + 29] * v + c[b + 21]) * v + c[b + 13]) * v + c[b + 5]
+    d2 = ((c[b + 30] * v + c[b + 22]) * v + c[b + 14]) * v + c[b + 6]
+    d3 = ((c[b + 31] * v + c[b + 23]) * v + c[b + 15]) * v + c[b + 7]
+    return (((r3 * u + r2) * u + r1) * u + r0) / (((d3 * u + d2) * u + d1) * u + d0)
 
 
-@numba.njit(cache=True, parallel=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
     """Signed height z - S(x, y) of each point of an (N, >= 3) array, in one pass.
@@ -497,7 +504,10 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     give NaN. Chunks of points are split over threads; every point is computed alone, so the
     result does not depend on the thread count. Degree 3: A and D of each span pair as
     bicubic polynomials computed once (:func:`cubic_span_coefficients`), then per point the
-    span, two Horner evaluations and one division (the same value up to rounding).
+    span (one multiplication and truncation on the uniform knots, clamped to the end spans,
+    which points outside the knot range within the tolerance extrapolate), Horner evaluations
+    (multiply-adds may be fused) and one division: the value of the B-spline sums up to
+    rounding (1e-15 relative).
     """
     n = positions.shape[0]
     p = degree
@@ -510,7 +520,10 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     n1 = control.shape[1]
     inv_wx = _inverse_span_width(n0, p, knots_x)
     inv_wy = _inverse_span_width(n1, p, knots_y)
+    nsx = n0 - p
     nsy = n1 - p
+    low_x = knots_x[p]
+    low_y = knots_y[p]
     coef = cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy) \
         if p == 3 else np.empty(0)
     chunk = 4096
@@ -529,12 +542,11 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
                 out[k] = np.nan
                 continue
             if p == 3:
-                sx = _uniform_span(n0, 3, px, knots_x, inv_wx)
-                sy = _uniform_span(n1, 3, py, knots_y, inv_wy)
-                u = (px - knots_x[sx]) * inv_wx
-                v = (py - knots_y[sy]) * inv_wy
-                base = ((sx - 3) * nsy + (sy - 3)) * 32
-                s = _bicubic(coef, base, u, v) / _bicubic(coef, base + 16, u, v)
+                fx = (px - low_x) * inv_wx
+                fy = (py - low_y) * inv_wy
+                ix = min(max(int(fx), 0), nsx - 1)
+                iy = min(max(int(fy), 0), nsy - 1)
+                s = _cubic_span_ratio(coef, (ix * nsy + iy) * 32, fx - ix, fy - iy)
             else:
                 s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
                                  bx, by, left, right)
