@@ -149,7 +149,9 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
 def steepest_neighbour_slope(height, cell_size):
     """Per cell, the steepest slope (rise over run, ≥ 0) from it to any 8-neighbour:
     max |height[n] - height[c]| / d(c, n) over neighbours n with finite height; 0 for a cell
-    without finite neighbours, and for inf (empty) cells."""
+    without finite neighbours, and for inf (empty) cells. The largest rise along the axes and
+    across are divided once each: a correctly rounded division by a positive number keeps the
+    order, so this is the maximum of the per-neighbour ratios."""
     nx, ny = height.shape
     out = np.zeros((nx, ny))
     diagonal = cell_size * _SQRT2
@@ -158,7 +160,8 @@ def steepest_neighbour_slope(height, cell_size):
             h = height[i, j]
             if not np.isfinite(h):
                 continue
-            best = 0.0
+            straight = 0.0
+            across = 0.0
             for di in range(-1, 2):
                 a = i + di
                 if a < 0 or a >= nx:
@@ -170,11 +173,11 @@ def steepest_neighbour_slope(height, cell_size):
                     hn = height[a, b]
                     if not np.isfinite(hn):
                         continue
-                    d = cell_size if (di == 0 or dj == 0) else diagonal
-                    v = abs(hn - h) / d
-                    if v > best:
-                        best = v
-            out[i, j] = best
+                    if di == 0 or dj == 0:
+                        straight = max(straight, abs(hn - h))
+                    else:
+                        across = max(across, abs(hn - h))
+            out[i, j] = max(straight / cell_size, across / diagonal)
     return out
 
 
