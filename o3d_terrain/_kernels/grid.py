@@ -13,13 +13,9 @@ FILLED = 2
 
 
 @numba.njit(cache=True, inline="always")
-def _cell(x, y, x_min, y_min, cell_size, nx, ny):
-    """Flat cell index (ix * ny + iy) of one point; -1 outside the grid, -2 non-finite x or y.
-
-    A point on the far edge of the grid (x == x_min + nx * cell_size) goes to the last cell.
-    """
-    fx = (x - x_min) / cell_size
-    fy = (y - y_min) / cell_size
+def _scaled_cell(fx, fy, nx, ny):
+    """:func:`_cell` from the point's coordinates in cells, fx = (x - x_min) / cell_size and
+    fy likewise."""
     if not (math.isfinite(fx) and math.isfinite(fy)):
         return -2
     ix = int(math.floor(fx))
@@ -33,6 +29,15 @@ def _cell(x, y, x_min, y_min, cell_size, nx, ny):
     return ix * ny + iy
 
 
+@numba.njit(cache=True, inline="always")
+def _cell(x, y, x_min, y_min, cell_size, nx, ny):
+    """Flat cell index (ix * ny + iy) of one point; -1 outside the grid, -2 non-finite x or y.
+
+    A point on the far edge of the grid (x == x_min + nx * cell_size) goes to the last cell.
+    """
+    return _scaled_cell((x - x_min) / cell_size, (y - y_min) / cell_size, nx, ny)
+
+
 @numba.njit(cache=True)
 def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
     """:func:`_cell` of every point given as separate x and y arrays."""
@@ -43,7 +48,8 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
 
 
 @numba.njit(cache=True)
-def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0):
+def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0,
+             inverse=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
     and mean z of the rows (x, y, z) of an (N, 3) array (read in place); with ``layer`` > 0
     also the number and the sum of the z values within [lowest, lowest + layer] per cell (the
@@ -51,7 +57,9 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     arrays otherwise).
 
     Each point's cell is :func:`_cell`, found in the first pass over the points and kept for
-    the second (no separate pass). Points with a non-finite x, y or z, or outside the grid, are
+    the second (no separate pass). ``inverse`` > 0 must be exactly 1 / cell_size (a power of
+    two cell size): the coordinates are then scaled by a multiplication, which gives the
+    quotient bit for bit. Points with a non-finite x, y or z, or outside the grid, are
     skipped and counted: the result ends with (number non-finite, number outside the grid).
     Cells with fewer than ``min_points`` points are empty. Empty cells take the mean of the
     8-neighbour *measured* cells (state FILLED) when ``fill_empty``; otherwise, or with no
@@ -69,7 +77,11 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     nonfinite = 0
     outside = 0
     for k in range(n):
-        c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+        if inverse > 0.0:
+            c = _scaled_cell((positions[k, 0] - x_min) * inverse,
+                             (positions[k, 1] - y_min) * inverse, nx, ny)
+        else:
+            c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
         v = positions[k, 2]
         if c == -2 or not math.isfinite(v):
             nonfinite += 1
