@@ -71,11 +71,13 @@ def _finite_extent(positions, h):
 
 @numba.njit(cache=True)
 def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby, deepest,
-                  bin_size, min_cells):
+                  bin_size, min_cells, inverse=0.0):
     """Per block, the median depth (m) of the cells whose mean height (over their points at
     most ``deepest`` above the surface, x and y finite) is below it (depths beyond
     ``deepest`` counted as ``deepest``); NaN where fewer than ``min_cells`` cells are below.
-    ``positions``: (N, >= 2) x, y rows read in place."""
+    ``positions``: (N, >= 2) x, y rows read in place. ``inverse`` > 0 must be exactly
+    1 / cell (a power-of-two cell): the coordinates are then scaled by a multiplication, which
+    gives the quotient bit for bit."""
     total_h = np.zeros(nx * ny)
     count = np.zeros(nx * ny, np.int64)
     for i in range(h.size):
@@ -85,8 +87,12 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
         # NaN or an obstacle higher than any threshold, or an undefined position
         if not (hi <= deepest and math.isfinite(x) and math.isfinite(y)):
             continue
-        ix = int((x - x_min) / cell)
-        iy = int((y - y_min) / cell)
+        if inverse > 0.0:
+            ix = int((x - x_min) * inverse)
+            iy = int((y - y_min) * inverse)
+        else:
+            ix = int((x - x_min) / cell)
+            iy = int((y - y_min) / cell)
         if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
             continue
         c = ix * ny + iy
@@ -136,6 +142,15 @@ def _spread_blocks(out, positions, h, local, x_min, y_min, block_side, nbx, nby)
         out[i] = local[bx * nby + by]
 
 
+def _exact_inverse(cell: float) -> float:
+    """1 / cell when it is exact (a power of two, e.g. :data:`MISFIT_CELL`), else 0."""
+    c = float(cell)
+    if not (math.isfinite(c) and c > 0 and math.frexp(c)[0] == 0.5):
+        return 0.0
+    inverse = 1.0 / c
+    return inverse if math.isfinite(inverse) else 0.0
+
+
 def _dilate(a: np.ndarray) -> np.ndarray:
     """Maximum over each entry's 3 x 3 neighbourhood (edges replicated)."""
     p = np.pad(a, 1, mode="edge")
@@ -181,7 +196,7 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     nbx = (nx + per_block - 1) // per_block
     nby = (ny + per_block - 1) // per_block
     scales = _block_scales(p, h, x_min, y_min, float(cell), nx, ny, per_block, nbx, nby,
-                           float(high), _BIN, int(min_cells))
+                           float(high), _BIN, int(min_cells), _exact_inverse(cell))
     local = factor * 1.4826 * scales
     local = np.where(local >= significant * threshold, np.minimum(local, high), threshold)
     if not (local > threshold).any():  # the usual case where the surface follows the terrain
