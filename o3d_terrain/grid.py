@@ -116,6 +116,16 @@ def region_of(positions: np.ndarray) -> tuple[float, float, float, float]:
     return (float(x_min), float(x_max), float(y_min), float(y_max))
 
 
+def _exact_inverse(cell_size: float) -> float:
+    """1 / cell_size when it is exact (a power of two: 0.25, 0.5, 1, 2 m), so that multiplying
+    by it equals dividing by the cell size bit for bit; 0 otherwise."""
+    c = float(cell_size)
+    if not (math.isfinite(c) and c > 0 and math.frexp(c)[0] == 0.5):
+        return 0.0
+    inverse = 1.0 / c
+    return inverse if math.isfinite(inverse) else 0.0
+
+
 def quantize_points(
     positions: np.ndarray,
     *,
@@ -151,13 +161,13 @@ def quantize_points(
             f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
         )
-    cells = _grid.cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny)
     if not (isinstance(layer, (int, float, np.integer, np.floating)) and math.isfinite(layer)
             and layer >= 0):
         raise InputError(f"layer must be a finite number of metres >= 0, got {layer!r}")
     layer = float(layer)
     height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum = \
-        _grid.quantize(cells, z, nx, ny, min_points, fill_empty, layer)
+        _grid.quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer,
+                       _exact_inverse(cell_size))
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
                       highest, mean, int(nonfinite), int(outside), layer,
                       layer_count if layer else None, layer_sum if layer else None)

@@ -27,6 +27,7 @@ the data pin it. Elsewhere the global threshold is unchanged.
 
 from __future__ import annotations
 
+import math
 
 import numba
 import numpy as np
@@ -54,19 +55,50 @@ _BIN = 0.002
 
 
 @numba.njit(cache=True)
-def _block_scales(x, y, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby, deepest,
-                  bin_size, min_cells):
+def _finite_extent(positions, h):
+    """(x_min, x_max, y_min, y_max, count) of the points with finite x, y and height."""
+    x_min = np.inf
+    x_max = -np.inf
+    y_min = np.inf
+    y_max = -np.inf
+    count = 0
+    for i in range(h.size):
+        x = positions[i, 0]
+        y = positions[i, 1]
+        if not (math.isfinite(h[i]) and math.isfinite(x) and math.isfinite(y)):
+            continue
+        count += 1
+        x_min = min(x_min, x)
+        x_max = max(x_max, x)
+        y_min = min(y_min, y)
+        y_max = max(y_max, y)
+    return x_min, x_max, y_min, y_max, count
+
+
+@numba.njit(cache=True)
+def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby, deepest,
+                  bin_size, min_cells, inverse=0.0):
     """Per block, the median depth (m) of the cells whose mean height (over their points at
-    most ``deepest`` above the surface) is below it (depths beyond ``deepest`` counted as
-    ``deepest``); NaN where fewer than ``min_cells`` cells are below."""
+    most ``deepest`` above the surface, x and y finite) is below it (depths beyond
+    ``deepest`` counted as ``deepest``); NaN where fewer than ``min_cells`` cells are below.
+    ``positions``: (N, >= 2) x, y rows read in place. ``inverse`` > 0 must be exactly
+    1 / cell (a power-of-two cell): the coordinates are then scaled by a multiplication, which
+    gives the quotient bit for bit."""
     total_h = np.zeros(nx * ny)
     count = np.zeros(nx * ny, np.int64)
-    for i in range(x.size):
+    for i in range(h.size):
         hi = h[i]
-        if not (hi <= deepest):  # NaN or an obstacle higher than any threshold
+        x = positions[i, 0]
+        y = positions[i, 1]
+        # NaN or an obstacle higher than any threshold, or an undefined position
+        if not (hi <= deepest and math.isfinite(x) and math.isfinite(y)):
             continue
-        ix = int((x[i] - x_min) / cell)
-        iy = int((y[i] - y_min) / cell)
+        if inverse > 0.0:
+            ix = int((x - x_min) * inverse)
+            iy = int((y - y_min) * inverse)
+        else:
+            ix = int((x - x_min) / cell)
+            iy = int((y - y_min) / cell)
         if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
             continue
         c = ix * ny + iy
@@ -100,6 +132,29 @@ def _block_scales(x, y, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby, deep
                 out[b] = (k + 0.5) * bin_size
                 break
     return out
+
+
+@numba.njit(cache=True)
+def _spread_blocks(out, positions, h, local, x_min, y_min, block_side, nbx, nby):
+    """In place: ``out[i]`` = ``local`` of the block of each point with finite x, y and
+    height (block indices truncated, then clipped to the grid)."""
+    for i in range(h.size):
+        x = positions[i, 0]
+        y = positions[i, 1]
+        if not (math.isfinite(h[i]) and math.isfinite(x) and math.isfinite(y)):
+            continue
+        bx = min(max(int((x - x_min) / block_side), 0), nbx - 1)
+        by = min(max(int((y - y_min) / block_side), 0), nby - 1)
+        out[i] = local[bx * nby + by]
+
+
+def _exact_inverse(cell: float) -> float:
+    """1 / cell when it is exact (a power of two, e.g. :data:`MISFIT_CELL`), else 0."""
+    c = float(cell)
+    if not (math.isfinite(c) and c > 0 and math.frexp(c)[0] == 0.5):
+        return 0.0
+    inverse = 1.0 / c
+    return inverse if math.isfinite(inverse) else 0.0
 
 
 def _dilate(a: np.ndarray) -> np.ndarray:
@@ -144,20 +199,18 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     p = np.asarray(positions, dtype=np.float64)
     h = np.ascontiguousarray(heights, dtype=np.float64)
     out = np.full(len(p), float(threshold))
-    finite = np.isfinite(h) & np.isfinite(p[:, 0]) & np.isfinite(p[:, 1])
-    if not finite.any() or high <= threshold or not block > 0:
+    if high <= threshold or not block > 0:
         return out
-    x = np.ascontiguousarray(p[:, 0])
-    y = np.ascontiguousarray(p[:, 1])
-    x_min, x_max = float(x[finite].min()), float(x[finite].max())
-    y_min, y_max = float(y[finite].min()), float(y[finite].max())
+    x_min, x_max, y_min, y_max, n_finite = _finite_extent(p, h)
+    if n_finite == 0:
+        return out
     per_block = max(1, int(round(block / cell)))
     nx = int((x_max - x_min) / cell) + 1
     ny = int((y_max - y_min) / cell) + 1
     nbx = (nx + per_block - 1) // per_block
     nby = (ny + per_block - 1) // per_block
-    scales = _block_scales(x, y, np.where(finite, h, np.nan), x_min, y_min, float(cell), nx,
-                           ny, per_block, nbx, nby, float(high), _BIN, int(min_cells))
+    scales = _block_scales(p, h, x_min, y_min, float(cell), nx, ny, per_block, nbx, nby,
+                           float(high), _BIN, int(min_cells), _exact_inverse(cell))
     local = factor * 1.4826 * scales
     local = np.where(local >= significant * threshold, np.minimum(local, high), threshold)
     if not (local > threshold).any():  # the usual case where the surface follows the terrain
@@ -165,15 +218,13 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     # a surface that bridges a gully undercuts the ridges beside it: the neighbouring blocks
     # (within one block, i.e. two control spacings) get the widened threshold too
     local = _dilate(local.reshape(nbx, nby)).ravel()
-    bx = np.clip(((x[finite] - x_min) / (cell * per_block)).astype(np.int64), 0, nbx - 1)
-    by = np.clip(((y[finite] - y_min) / (cell * per_block)).astype(np.int64), 0, nby - 1)
-    out[finite] = local[bx * nby + by]
+    _spread_blocks(out, p, h, local, x_min, y_min, cell * per_block, nbx, nby)
     if grade is not None:
         if reach is None:
             reach = MISFIT_REACH * block / MISFIT_BLOCK
         wide = np.flatnonzero(out > threshold)
         if wide.size:
-            g = np.asarray(grade(x[wide], y[wide]), dtype=np.float64)
+            g = np.asarray(grade(p[wide, 0], p[wide, 1]), dtype=np.float64)
             g = np.where(np.isfinite(g), g, 0.0)
             out[wide] = np.maximum(out[wide], np.minimum(threshold + reach * g, high))
     return out

@@ -124,3 +124,62 @@ def above_slope_cone(height, cell_size, slope, tolerance):
                         best = min(best, envelope[a, b] + step)
             flagged[i, j] = height[i, j] > best + tolerance
     return flagged
+
+
+def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=1.5, cell=1.0,
+                      significant=2.0, min_cells=20, bin_size=0.002):
+    """o3d_terrain.misfit.misfit_thresholds with numpy and plain loops: cells of ``cell`` m
+    from the finite points' lower-left corner, the mean height per cell of the points at most
+    ``high`` above the surface, per block the median depth of the cells below the surface (a
+    histogram of ``bin_size`` bins), the widened blocks dilated by one block, spread to the
+    points."""
+    p = np.asarray(positions, dtype=np.float64)
+    h = np.asarray(heights, dtype=np.float64)
+    out = np.full(len(p), float(threshold))
+    finite = np.isfinite(h) & np.isfinite(p[:, 0]) & np.isfinite(p[:, 1])
+    if not finite.any() or high <= threshold or not block > 0:
+        return out
+    x, y = p[:, 0], p[:, 1]
+    x_min, x_max = x[finite].min(), x[finite].max()
+    y_min, y_max = y[finite].min(), y[finite].max()
+    per_block = max(1, int(round(block / cell)))
+    nx = int((x_max - x_min) / cell) + 1
+    ny = int((y_max - y_min) / cell) + 1
+    nbx = (nx + per_block - 1) // per_block
+    nby = (ny + per_block - 1) // per_block
+    total = np.zeros((nx, ny))
+    count = np.zeros((nx, ny), np.int64)
+    for i in np.flatnonzero(finite & (h <= high)):
+        ix = int((x[i] - x_min) / cell)
+        iy = int((y[i] - y_min) / cell)
+        if 0 <= ix < nx and 0 <= iy < ny:
+            total[ix, iy] += h[i]
+            count[ix, iy] += 1
+    nbins = int(high / bin_size) + 1
+    depths = [[[] for _ in range(nby)] for _ in range(nbx)]
+    for ix in range(nx):
+        for iy in range(ny):
+            if count[ix, iy] and total[ix, iy] / count[ix, iy] <= 0.0:
+                mean = total[ix, iy] / count[ix, iy]
+                depths[ix // per_block][iy // per_block].append(
+                    min(int(-mean / bin_size), nbins - 1))
+    local = np.full((nbx, nby), float(threshold))
+    for bx in range(nbx):
+        for by in range(nby):
+            bins = sorted(depths[bx][by])
+            if len(bins) < min_cells:
+                continue
+            scale = (bins[(len(bins) + 1) // 2 - 1] + 0.5) * bin_size
+            t = factor * 1.4826 * scale
+            if t >= significant * threshold:
+                local[bx, by] = min(t, high)
+    if not (local > threshold).any():
+        return out
+    padded = np.pad(local, 1, mode="edge")
+    dilated = np.max([padded[i:i + nbx, j:j + nby] for i in range(3) for j in range(3)], axis=0)
+    side = cell * per_block
+    for i in np.flatnonzero(finite):
+        bx = min(max(int((x[i] - x_min) / side), 0), nbx - 1)
+        by = min(max(int((y[i] - y_min) / side), 0), nby - 1)
+        out[i] = dilated[bx, by]
+    return out

@@ -36,6 +36,25 @@ def test_kernel_matches_reference_options(rng, min_points, fill):
     np.testing.assert_array_equal(grid.mean, mean)
 
 
+@pytest.mark.parametrize("cell", [0.25, 0.5, 2.0, 0.7, 0.1])
+def test_points_on_cell_edges_match_reference(rng, cell):
+    """Power-of-two cell sizes scale the coordinates by a multiplication: points on and next to
+    the cell edges (and the far edge of the grid) fall in the cells the division gives."""
+    edges = np.arange(0, 41) * cell  # with 0.7 and 0.1, x * (1 / cell) moves some of them
+    x = np.r_[edges, np.nextafter(edges, -np.inf), np.nextafter(edges, np.inf),
+              rng.uniform(0, 40 * cell, 200)]
+    y = rng.permutation(x)
+    pts = np.c_[x, y, rng.normal(0, 1, x.size)]
+    region = (0.0, 40 * cell, 0.0, 40 * cell)
+    grid = quantize_points(pts, cell_size=cell, region=region)
+    z, count, state, lowest, highest, mean = naive_quantize(pts, 0.0, 0.0, cell, grid.nx,
+                                                            grid.ny)
+    np.testing.assert_array_equal(grid.count, count)
+    np.testing.assert_array_equal(grid.z, z)
+    np.testing.assert_array_equal(grid.lowest, lowest)
+    assert grid.skipped_outside > 0 and grid.count.sum() + grid.skipped_outside == x.size
+
+
 def test_equation_one_on_a_single_cell():
     z = np.array([1.0, 2.0, 3.0, 10.0])
     pts = np.column_stack([np.full(4, 0.1), np.full(4, 0.1), z])

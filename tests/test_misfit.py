@@ -94,3 +94,27 @@ def test_slope_term_widens_only_blocks_the_misfit_widened(rng):
     ground = ~block
     assert (np.abs(h[ground]) <= sloped[ground]).mean() > (np.abs(h[ground]) <= plain[ground]).mean()
     assert np.all(h[block] > sloped[block])
+
+
+def test_thresholds_equal_the_plain_reference(rng):
+    """The kernels give the plain reference's thresholds exactly: widened blocks (a sloped
+    field with gullies 1 m deep that a smooth surface bridges), points with non-finite
+    coordinates or heights, power-of-two and other cell sizes."""
+    import naive
+
+    n = 30_000
+    x, y = rng.uniform(0, 120, n), rng.uniform(-40, 60, n)
+    heights = 0.5 * np.sin(2 * np.pi * y / 10.0) + rng.normal(0, 0.03, n)
+    heights[rng.uniform(size=n) < 0.05] += 2.0  # obstacles, left out above MISFIT_HIGH
+    cloud = np.column_stack([x, y, heights + 0.3 * x])
+    cloud[::211, 0] = np.nan
+    cloud[5::307, 1] = np.inf
+    heights[7::401] = np.nan
+    widened = 0
+    for cell, block in ((1.0, 12.0), (0.5, 7.0), (0.7, 12.0)):
+        for threshold in (0.1, 0.3):
+            got = misfit_thresholds(cloud, heights, threshold, block=block, cell=cell)
+            expected = naive.misfit_thresholds(cloud, heights, threshold, block=block, cell=cell)
+            np.testing.assert_array_equal(got, expected)
+            widened += int((got > threshold).sum())
+    assert widened > 0

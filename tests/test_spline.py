@@ -245,6 +245,45 @@ def test_save_load_round_trip(tmp_path):
     assert TerrainSurface.load(tmp_path / "u.npz").cell_size == 0.25
 
 
+@pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
+def test_span_power_basis_equals_scipy_basis_functions(degree):
+    """The power form of each span's basis functions (clamped end spans included) gives the
+    B-spline basis at points of the span and at its two knots."""
+    n_ctrl = degree + 6
+    knots = clamped_uniform_knots(n_ctrl, degree, -2.0, 9.0)
+    inv_width = (n_ctrl - degree) / (knots[n_ctrl] - knots[degree])
+    power = kb.span_power_basis(knots, degree, n_ctrl, inv_width)
+    rng = np.random.default_rng(degree)
+    for s in range(n_ctrl - degree):
+        span = degree + s
+        t = np.r_[knots[span], rng.uniform(knots[span], knots[span + 1], 20), knots[span + 1]]
+        u = (t - knots[span]) * inv_width
+        for r in range(degree + 1):
+            coefficients = np.zeros(n_ctrl)
+            coefficients[span - degree + r] = 1.0
+            expected = BSpline(knots, coefficients, degree)(t)
+            got = np.polynomial.polynomial.polyval(u, power[s, r])
+            np.testing.assert_allclose(got, expected, atol=1e-13)
+
+
+def test_heights_above_extrapolate_the_end_spans_within_the_tolerance():
+    """Points just outside the knot range (within the rounding tolerance) take the end spans'
+    polynomials, like the surface itself; farther out they are NaN."""
+    rng = np.random.default_rng(12)
+    s = random_surface(rng, n0=9, n1=8)
+    x0, x1, y0, y1 = s.region
+    tol_x, tol_y = s._tolerances()
+    x = np.r_[x0 - 0.5 * tol_x, x1 + 0.5 * tol_x, x0 - 2 * tol_x, 0.3]
+    y = np.r_[y1 + 0.5 * tol_y, y0 - 0.5 * tol_y, 0.1, y1 + 2 * tol_y]
+    h = s.heights_above(np.c_[x, y, np.zeros(4)])
+    np.testing.assert_allclose(h[:2], -s(x[:2], y[:2]), atol=1e-12)
+    corner = NdBSpline((s.knots_x, s.knots_y), s.control_points * s.weights, s.degree)
+    denominator = NdBSpline((s.knots_x, s.knots_y), s.weights, s.degree)
+    ends = np.stack([np.clip(x[:2], x0, x1), np.clip(y[:2], y0, y1)], 1)
+    np.testing.assert_allclose(h[:2], -corner(ends) / denominator(ends), atol=1e-6)
+    assert np.isnan(h[2:]).all()
+
+
 def test_heights_above_equal_z_minus_surface_and_are_nan_outside():
     rng = np.random.default_rng(8)
     s = random_surface(rng, origin=(5e5, 4e6, 200.0))

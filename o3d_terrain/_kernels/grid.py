@@ -13,13 +13,9 @@ FILLED = 2
 
 
 @numba.njit(cache=True, inline="always")
-def _cell(x, y, x_min, y_min, cell_size, nx, ny):
-    """Flat cell index (ix * ny + iy) of one point; -1 outside the grid, -2 non-finite x or y.
-
-    A point on the far edge of the grid (x == x_min + nx * cell_size) goes to the last cell.
-    """
-    fx = (x - x_min) / cell_size
-    fy = (y - y_min) / cell_size
+def _scaled_cell(fx, fy, nx, ny):
+    """:func:`_cell` from the point's coordinates in cells, fx = (x - x_min) / cell_size and
+    fy likewise."""
     if not (math.isfinite(fx) and math.isfinite(fy)):
         return -2
     ix = int(math.floor(fx))
@@ -33,6 +29,15 @@ def _cell(x, y, x_min, y_min, cell_size, nx, ny):
     return ix * ny + iy
 
 
+@numba.njit(cache=True, inline="always")
+def _cell(x, y, x_min, y_min, cell_size, nx, ny):
+    """Flat cell index (ix * ny + iy) of one point; -1 outside the grid, -2 non-finite x or y.
+
+    A point on the far edge of the grid (x == x_min + nx * cell_size) goes to the last cell.
+    """
+    return _scaled_cell((x - x_min) / cell_size, (y - y_min) / cell_size, nx, ny)
+
+
 @numba.njit(cache=True)
 def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
     """:func:`_cell` of every point given as separate x and y arrays."""
@@ -43,23 +48,19 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
 
 
 @numba.njit(cache=True)
-def cell_indices_of_positions(positions, x_min, y_min, cell_size, nx, ny):
-    """:func:`_cell` of the rows (x, y, z) of an (N, 3) array, read in place."""
-    out = np.empty(positions.shape[0], np.int64)
-    for k in range(positions.shape[0]):
-        out[k] = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
-    return out
-
-
-@numba.njit(cache=True)
-def quantize(cells, z, nx, ny, min_points, fill_empty, layer=0.0):
+def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0,
+             inverse=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
-    and mean z; with ``layer`` > 0 also the number and the sum of the z values within
-    [lowest, lowest + layer] per cell (the ground-layer statistics of
-    :mod:`o3d_terrain.ground_layer`, summed in point order; empty arrays otherwise).
+    and mean z of the rows (x, y, z) of an (N, 3) array (read in place); with ``layer`` > 0
+    also the number and the sum of the z values within [lowest, lowest + layer] per cell (the
+    ground-layer statistics of :mod:`o3d_terrain.ground_layer`, summed in point order; empty
+    arrays otherwise).
 
-    ``cells`` from :func:`cell_indices`; points with a negative cell or non-finite z are skipped
-    and counted: the result ends with (number non-finite, number outside the grid).
+    Each point's cell is :func:`_cell`, found in the first pass over the points and kept for
+    the second (no separate pass). ``inverse`` > 0 must be exactly 1 / cell_size (a power of
+    two cell size): the coordinates are then scaled by a multiplication, which gives the
+    quotient bit for bit. Points with a non-finite x, y or z, or outside the grid, are
+    skipped and counted: the result ends with (number non-finite, number outside the grid).
     Cells with fewer than ``min_points`` points are empty. Empty cells take the mean of the
     8-neighbour *measured* cells (state FILLED) when ``fill_empty``; otherwise, or with no
     measured neighbour, they are INVALID with Z = 0. Sums are taken in point order (a plain
@@ -67,24 +68,32 @@ def quantize(cells, z, nx, ny, min_points, fill_empty, layer=0.0):
     the mean 0, in cells without points (whatever ``min_points``).
     """
     m = nx * ny
+    n = positions.shape[0]
+    cells = np.empty(n, np.int32)  # m <= MAX_CELLS of o3d_terrain.grid, far below 2^31
     count = np.zeros(m, np.int64)
     total = np.zeros(m)
     lowest = np.full(m, np.inf)
     highest = np.full(m, -np.inf)
     nonfinite = 0
     outside = 0
-    for k in range(cells.shape[0]):
-        c = cells[k]
-        if c == -2 or not math.isfinite(z[k]):
+    for k in range(n):
+        if inverse > 0.0:
+            c = _scaled_cell((positions[k, 0] - x_min) * inverse,
+                             (positions[k, 1] - y_min) * inverse, nx, ny)
+        else:
+            c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+        v = positions[k, 2]
+        if c == -2 or not math.isfinite(v):
             nonfinite += 1
+            cells[k] = -1
             continue
+        cells[k] = c
         if c < 0:
             outside += 1
             continue
         count[c] += 1
-        total[c] += z[k]
-        v = z[k]  # branch-free min/max (cells hold few points: the branches mispredict)
-        lowest[c] = min(lowest[c], v)
+        total[c] += v
+        lowest[c] = min(lowest[c], v)  # branch-free (cells hold few points: branches mispredict)
         highest[c] = max(highest[c], v)
     mean = np.zeros(m)
     for c in range(m):
@@ -94,15 +103,16 @@ def quantize(cells, z, nx, ny, min_points, fill_empty, layer=0.0):
     use_layer = layer > 0.0
     layer_count = np.zeros(m if use_layer else 0, np.int64)
     layer_sum = np.zeros(m if use_layer else 0)
-    for k in range(cells.shape[0]):
+    for k in range(n):
         c = cells[k]
-        if c < 0 or not math.isfinite(z[k]):
+        if c < 0:
             continue
-        d = z[k] - mean[c]
+        v = positions[k, 2]
+        d = v - mean[c]
         squares[c] += d * d
-        if use_layer and z[k] <= lowest[c] + layer:
+        if use_layer and v <= lowest[c] + layer:
             layer_count[c] += 1
-            layer_sum[c] += z[k]
+            layer_sum[c] += v
     height = np.zeros(m)
     state = np.zeros(m, np.uint8)
     for c in range(m):

@@ -97,51 +97,61 @@ def window_min(values, radius):
 def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
     """Cells reachable from ``seeds`` by 8-neighbour steps that climb at most
     step_slope * distance + tolerance (descending is free). ``height`` must be finite where it
-    can be crossed (e.g. the gap envelope of :func:`prior_seeds`); inf cells are never entered. Returns a bool
-    mask over all cells (measured and crossed empty cells)."""
+    can be crossed (e.g. the gap envelope of :func:`prior_seeds`); inf cells are never entered.
+    Returns a bool mask over all cells (measured and crossed empty cells).
+
+    A breadth-first search over the grid padded with a ring of inf cells (never entered), so
+    the 8 neighbours of a cell are its flat index plus fixed offsets without bounds tests. The
+    reachable set does not depend on the order cells are visited in."""
     nx, ny = height.shape
-    accepted = np.zeros((nx, ny), np.bool_)
-    queue_i = np.empty(nx * ny, np.int32)  # row and column apart: no division per cell
-    queue_j = np.empty(nx * ny, np.int32)
-    head = 0
+    w = ny + 2
+    padded = np.full((nx + 2) * w, np.inf)
+    accepted = np.zeros((nx + 2) * w, np.bool_)
+    queue = np.empty(nx * ny, np.int64)
     tail = 0
     for i in range(nx):
         for j in range(ny):
-            if seeds[i, j] and np.isfinite(height[i, j]):
-                accepted[i, j] = True
-                queue_i[tail] = i
-                queue_j[tail] = j
+            q = (i + 1) * w + j + 1
+            h = height[i, j]
+            padded[q] = h
+            if seeds[i, j] and np.isfinite(h):
+                accepted[q] = True
+                queue[tail] = q
                 tail += 1
     straight = step_slope * cell_size + tolerance
     diagonal = step_slope * cell_size * _SQRT2 + tolerance
+    head = 0
     while head < tail:
-        i = queue_i[head]
-        j = queue_j[head]
+        q = queue[head]
         head += 1
-        h = height[i, j]
-        for di in range(-1, 2):
-            a = i + di
-            if a < 0 or a >= nx:
-                continue
-            for dj in range(-1, 2):
-                b = j + dj
-                if b < 0 or b >= ny or (di == 0 and dj == 0) or accepted[a, b]:
-                    continue
-                limit = straight if (di == 0 or dj == 0) else diagonal
-                hn = height[a, b]
-                if hn <= h + limit:
-                    accepted[a, b] = True
-                    queue_i[tail] = a
-                    queue_j[tail] = b
-                    tail += 1
-    return accepted
+        hs = padded[q] + straight
+        hd = padded[q] + diagonal
+        for o in (-w - 1, -w + 1, w - 1, w + 1):
+            r = q + o
+            if not accepted[r] and padded[r] <= hd:
+                accepted[r] = True
+                queue[tail] = r
+                tail += 1
+        for o in (-w, -1, 1, w):
+            r = q + o
+            if not accepted[r] and padded[r] <= hs:
+                accepted[r] = True
+                queue[tail] = r
+                tail += 1
+    out = np.empty((nx, ny), np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            out[i, j] = accepted[(i + 1) * w + j + 1]
+    return out
 
 
 @numba.njit(cache=True)
 def steepest_neighbour_slope(height, cell_size):
     """Per cell, the steepest slope (rise over run, ≥ 0) from it to any 8-neighbour:
     max |height[n] - height[c]| / d(c, n) over neighbours n with finite height; 0 for a cell
-    without finite neighbours, and for inf (empty) cells."""
+    without finite neighbours, and for inf (empty) cells. The largest rise along the axes and
+    across are divided once each: a correctly rounded division by a positive number keeps the
+    order, so this is the maximum of the per-neighbour ratios."""
     nx, ny = height.shape
     out = np.zeros((nx, ny))
     diagonal = cell_size * _SQRT2
@@ -150,7 +160,8 @@ def steepest_neighbour_slope(height, cell_size):
             h = height[i, j]
             if not np.isfinite(h):
                 continue
-            best = 0.0
+            straight = 0.0
+            across = 0.0
             for di in range(-1, 2):
                 a = i + di
                 if a < 0 or a >= nx:
@@ -162,11 +173,11 @@ def steepest_neighbour_slope(height, cell_size):
                     hn = height[a, b]
                     if not np.isfinite(hn):
                         continue
-                    d = cell_size if (di == 0 or dj == 0) else diagonal
-                    v = abs(hn - h) / d
-                    if v > best:
-                        best = v
-            out[i, j] = best
+                    if di == 0 or dj == 0:
+                        straight = max(straight, abs(hn - h))
+                    else:
+                        across = max(across, abs(hn - h))
+            out[i, j] = max(straight / cell_size, across / diagonal)
     return out
 
 
@@ -234,6 +245,53 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
 
 
 @numba.njit(cache=True)
+def _cone_sweep(gap, env, measured, g1, g2, s1, s2, forward):
+    """One raster pass of :func:`prior_seeds`, in place: each cell takes the least of its
+    value and its already swept neighbours' (the previous row's three, the previous cell in
+    its row) plus the step (``g1``/``g2`` straight/diagonal for ``gap``, whose measured cells
+    stay fixed; ``s1``/``s2`` for ``env``). Forward: rows and cells in increasing order;
+    backward: decreasing. Per row, the previous row's terms first (independent of each other),
+    then the chain along the row carried in registers: a minimum is exact in any order, so
+    this is the plain sweep."""
+    nx, ny = gap.shape
+    tg = np.empty(ny)
+    te = np.empty(ny)
+    for step in range(nx):
+        i = step if forward else nx - 1 - step
+        p = i - 1 if forward else i + 1
+        has_prev = p >= 0 and p < nx
+        for j in range(ny):
+            v = gap[i, j]
+            e = env[i, j]
+            if has_prev:
+                v = min(v, gap[p, j] + g1)
+                e = min(e, env[p, j] + s1)
+                if j > 0:
+                    v = min(v, gap[p, j - 1] + g2)
+                    e = min(e, env[p, j - 1] + s2)
+                if j < ny - 1:
+                    v = min(v, gap[p, j + 1] + g2)
+                    e = min(e, env[p, j + 1] + s2)
+            tg[j] = v
+            te[j] = e
+        first = 0 if forward else ny - 1
+        if not measured[i, first]:
+            gap[i, first] = tg[first]
+        env[i, first] = te[first]
+        vp = gap[i, first]
+        ep = env[i, first]
+        for k in range(1, ny):
+            j = k if forward else ny - 1 - k
+            ep = min(te[j], ep + s1)
+            env[i, j] = ep
+            if measured[i, j]:
+                vp = gap[i, j]
+            else:
+                vp = min(tg[j], vp + g1)
+                gap[i, j] = vp
+
+
+@numba.njit(cache=True)
 def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
     """The inputs of :func:`connected_terrain` for the terrain prior: (crossed, seeds).
 
@@ -251,46 +309,8 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
     g2 = g1 * _SQRT2
     s1 = slope * cell_size
     s2 = s1 * _SQRT2
-    for i in range(nx):  # forward sweep: neighbours above and to the left
-        for j in range(ny):
-            fixed = measured[i, j]
-            v = gap[i, j]
-            e = env[i, j]
-            if i > 0:
-                v = min(v, gap[i - 1, j] + g1)
-                e = min(e, env[i - 1, j] + s1)
-                if j > 0:
-                    v = min(v, gap[i - 1, j - 1] + g2)
-                    e = min(e, env[i - 1, j - 1] + s2)
-                if j < ny - 1:
-                    v = min(v, gap[i - 1, j + 1] + g2)
-                    e = min(e, env[i - 1, j + 1] + s2)
-            if j > 0:
-                v = min(v, gap[i, j - 1] + g1)
-                e = min(e, env[i, j - 1] + s1)
-            if not fixed:
-                gap[i, j] = v
-            env[i, j] = e
-    for i in range(nx - 1, -1, -1):  # backward sweep
-        for j in range(ny - 1, -1, -1):
-            fixed = measured[i, j]
-            v = gap[i, j]
-            e = env[i, j]
-            if i < nx - 1:
-                v = min(v, gap[i + 1, j] + g1)
-                e = min(e, env[i + 1, j] + s1)
-                if j > 0:
-                    v = min(v, gap[i + 1, j - 1] + g2)
-                    e = min(e, env[i + 1, j - 1] + s2)
-                if j < ny - 1:
-                    v = min(v, gap[i + 1, j + 1] + g2)
-                    e = min(e, env[i + 1, j + 1] + s2)
-            if j < ny - 1:
-                v = min(v, gap[i, j + 1] + g1)
-                e = min(e, env[i, j + 1] + s1)
-            if not fixed:
-                gap[i, j] = v
-            env[i, j] = e
+    _cone_sweep(gap, env, measured, g1, g2, s1, s2, True)
+    _cone_sweep(gap, env, measured, g1, g2, s1, s2, False)
     lowest_around = window_min(low, radius)
     seeds = np.zeros((nx, ny), np.bool_)
     for i in range(nx):
