@@ -41,6 +41,12 @@ __all__ = [
 
 def clamped_uniform_knots(n_ctrl: int, degree: int, low: float, high: float) -> np.ndarray:
     """Clamped uniform knot vector of ``n_ctrl + degree + 1`` knots over [low, high]."""
+    _check_knots(n_ctrl, degree, low, high)
+    return _bs.clamped_uniform_knots(int(n_ctrl), int(degree), float(low), float(high))
+
+
+def _check_knots(n_ctrl: int, degree: int, low: float, high: float) -> None:
+    """The checks of :func:`clamped_uniform_knots`."""
     if degree < 1 or n_ctrl < degree + 1:
         raise InputError(
             f"a degree-{degree} spline needs at least {degree + 1} control points per axis, "
@@ -48,7 +54,6 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, low: float, high: float) -> 
         )
     if not (high > low):
         raise InputError(f"knot range [{low}, {high}] is empty; high must exceed low")
-    return _bs.clamped_uniform_knots(int(n_ctrl), int(degree), float(low), float(high))
 
 
 def _as_xy(x, y) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
@@ -359,23 +364,23 @@ class GridBasis:
         n0, n1 = (int(v) for v in control_points)
         self.n0, self.n1, self.degree = n0, n1, int(degree)
         x_min, x_max, y_min, y_max = region_local
-        self.knots_x = clamped_uniform_knots(n0, degree, x_min, x_max)
-        self.knots_y = clamped_uniform_knots(n1, degree, y_min, y_max)
-        x_local = np.ascontiguousarray(x_local, dtype=np.float64)
-        y_local = np.ascontiguousarray(y_local, dtype=np.float64)
-        self.spans_x, vx = _bs.basis_table(x_local, n0, degree, self.knots_x, 0)
-        self.spans_y, vy = _bs.basis_table(y_local, n1, degree, self.knots_y, 0)
-        self.basis_x = np.ascontiguousarray(vx[:, 0, :])
-        self.basis_y = np.ascontiguousarray(vy[:, 0, :])
+        _check_knots(n0, degree, x_min, x_max)
+        _check_knots(n1, degree, y_min, y_max)
+        # per axis in one kernel: knots, spans and basis values at the cell centres (the values
+        # of clamped_uniform_knots and basis_table), Greville abscissae (mean of knots a + 1 ..
+        # a + degree, summed left to right)
+        self.knots_x, self.spans_x, self.basis_x, self.greville_x = _tk.axis_basis(
+            np.ascontiguousarray(x_local, dtype=np.float64), n0, self.degree, float(x_min),
+            float(x_max))
+        self.knots_y, self.spans_y, self.basis_y, self.greville_y = _tk.axis_basis(
+            np.ascontiguousarray(y_local, dtype=np.float64), n1, self.degree, float(y_min),
+            float(y_max))
         self._matrix_x: np.ndarray | None = None
         self._matrix_y: np.ndarray | None = None
         self.bandwidth = max(degree * n1 + degree, 2 * n1)
         hx = (x_max - x_min) / max(n0 - 1, 1)
         hy = (y_max - y_min) / max(n1 - 1, 1)
         self.penalty_weights = (hy * hy / (hx * hx), 2.0, hx * hx / (hy * hy))
-        p = self.degree
-        self.greville_x = _greville(self.knots_x, n0, p)
-        self.greville_y = _greville(self.knots_y, n1, p)
 
     @property
     def matrix_x(self) -> np.ndarray:
@@ -520,15 +525,6 @@ def _solve_band(band: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 _DPBSV = get_lapack_funcs("pbsv", dtype=np.float64)
 _NONE = np.zeros(0)  # an empty optional array argument of the kernels
-
-
-def _greville(knots: np.ndarray, n_ctrl: int, degree: int) -> np.ndarray:
-    """Greville abscissae: the mean of knots a + 1 .. a + degree of each control point a
-    (summed left to right, then divided: the arithmetic of ``ndarray.mean``)."""
-    total = knots[1:1 + n_ctrl].copy()
-    for r in range(2, degree + 1):
-        total += knots[r:r + n_ctrl]
-    return total / degree
 
 
 def _dense(spans: np.ndarray, values: np.ndarray, n_ctrl: int, degree: int) -> np.ndarray:

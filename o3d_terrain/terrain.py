@@ -224,11 +224,13 @@ def fit_grid_detailed(
             grid.mean if use_mean else np.zeros((0, 0)), compact if use_mean else
             np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
         fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
-                          smoothing, noise_floor, max_iterations, prior, grid_noise, z0)
+                          smoothing, noise_floor, max_iterations, prior, grid_noise, z0,
+                          grid.state)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
+    if method == "paper":
+        samples = np.where(valid, samples + z0, np.nan)
     surface = TerrainSurface(degree, basis.knots_x, basis.knots_y, q, r, origin)
-    return TerrainFit(surface, records, weights, np.where(valid, samples + z0, np.nan),
-                      equalized, outliers, noise)
+    return TerrainFit(surface, records, weights, samples, equalized, outliers, noise)
 
 
 def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
@@ -376,28 +378,29 @@ def _layouts(n_max, degree):
 
 
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
-                noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0):
+                noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0, state=None):
+    """The robust loop on samples ``z`` (relative to z0) and base weights ``base``; returns
+    (Q, R, basis, W, samples, equalized, outliers, records, noise) with the samples in world
+    z on the cells of ``state`` != 0 (default: base > 0), NaN elsewhere."""
     above_k = 2.5  # threshold above the surface, in noise scales
     below_k = 6.0  # threshold below the surface (low outliers), in noise scales
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
     layouts = _layouts(n_max, degree)
-    valid = base > 0
-    valid_cells = np.flatnonzero(valid)
     # the passes work on vectors of the valid cells' values (gathered once, scattered back at
     # the end): the per-cell kernels then read small contiguous arrays instead of (m0, m1)
     # grids, which stay cached across the passes (same values, same order of operations)
+    z_grid = z_start = np.ascontiguousarray(z, dtype=np.float64)
+    base = np.ascontiguousarray(base, dtype=np.float64)
+    use_prior = prior is not None
+    compact = np.ascontiguousarray(prior[0], dtype=bool) if use_prior else np.zeros((1, 1), bool)
+    spread = np.ascontiguousarray(prior[1], dtype=np.float64) if use_prior else np.zeros((1, 1))
+    # valid cells (base > 0), their samples and base weights, the measured ones' positions in
+    # the vectors, the prior's compact mask and spread at the valid cells: in one pass
+    valid_cells, z, base_cells, measured_cells, compact, prior_spread = _tk.gather_cells(
+        base.ravel(), z_grid.ravel(), np.ascontiguousarray(measured, dtype=bool).ravel(),
+        compact.ravel(), spread.ravel(), use_prior)
     count = valid_cells.size
     cells = np.arange(count)  # the vectors' indices, for the kernels' cell lists
-    z_grid = z_start = np.ascontiguousarray(z, dtype=np.float64)
-    z = z_grid.ravel()[valid_cells]
-    base_cells = base.ravel()[valid_cells]
-    measured_cells = np.flatnonzero(measured.ravel()[valid_cells])  # positions in the vectors
-    use_prior = prior is not None
-    if use_prior:
-        compact = np.ascontiguousarray(prior[0]).ravel()[valid_cells]
-        prior_spread = np.ascontiguousarray(prior[1], dtype=np.float64).ravel()[valid_cells]
-    else:
-        compact, prior_spread = np.zeros(1, bool), np.zeros(1)
     p = z  # read-only until the first pass writes into the buffers below
     w = base_cells
     # two buffers per product, alternating between passes (the previous pass stays readable)
@@ -455,16 +458,11 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
                                                               valid_cells)
     q = basis_final.solve_cells(valid_cells, p, w, rr, smoothing, denominators=denominators)
     s = basis_final.evaluate_at_cells(q, rr, valid_cells, surface, denominators)
-    # back onto the grid: 0 weight, sample z (before any noise update) and False elsewhere
-    shape = valid.shape
-    weights_grid = np.zeros(shape)
-    weights_grid.ravel()[valid_cells] = w
-    samples_grid = np.array(z_start, dtype=np.float64, order="C")
-    samples_grid.ravel()[valid_cells] = p
-    equalized_grid = np.zeros(shape, bool)
-    equalized_grid.ravel()[valid_cells] = equalized
-    outliers = np.zeros(shape, bool)
-    outliers.ravel()[valid_cells] = z - s > above_k * noise
+    # back onto the grid in one pass: 0 weight, sample z (before any noise update) and False
+    # elsewhere
+    weights_grid, samples_grid, equalized_grid, outliers = _tk.scatter_cells(
+        base > 0 if state is None else state, valid_cells, w, p, equalized, z, s,
+        above_k * noise, z_start, z0)
     return q, rr, basis_final, weights_grid, samples_grid, equalized_grid, outliers, records, \
         noise
 
@@ -482,8 +480,8 @@ def _control_weights(ratios: np.ndarray, coverage: np.ndarray, basis: GridBasis,
     """R = 0.5 + 0.5 * :func:`remap_weights` of the weight ratios (one per cell of ``cells``,
     zero elsewhere), with the projection of the valid mask (``coverage``) computed once per
     layout."""
-    num = _project(basis, ratios, cells)
-    return 0.5 + 0.5 * np.where(coverage > 1e-9, num / np.maximum(coverage, 1e-12), 1.0)
+    return _tk.control_weights_cells(basis.spans_x, basis.basis_x, basis.spans_y,
+                                     basis.basis_y, ratios, cells, basis.n0, basis.n1, coverage)
 
 
 def _project(basis: GridBasis, values: np.ndarray, cells: np.ndarray) -> np.ndarray:

@@ -208,6 +208,41 @@ def test_tensor_fit_over_sparse_cells_equals_dense_weighted_least_squares():
                                atol=1e-9)
 
 
+def test_grid_basis_tables_match_the_cox_de_boor_recursion():
+    # the per-axis tables of a grid basis (one kernel per axis): clamped uniform knots, the
+    # span and non-zero basis values at every cell centre, Greville abscissae; a non-finite
+    # centre gets span -1 and zero values
+    from o3d_terrain.spline import GridBasis
+
+    rng = np.random.default_rng(12)
+    for degree in (1, 2, 3, 4):
+        x = np.sort(rng.uniform(-3.0, 9.0, 29))
+        x[[0, -1]] = (-3.0, 9.0)  # both ends of the knot range
+        x[11] = np.nan
+        y = np.linspace(-1.0, 4.0, 17)
+        n0, n1 = degree + 4, degree + 2
+        basis = GridBasis(x, y, (n0, n1), degree, (-3.0, 9.0, -1.0, 4.0))
+        for axis, t, n, low, high in (("x", x, n0, -3.0, 9.0), ("y", y, n1, -1.0, 4.0)):
+            knots = getattr(basis, f"knots_{axis}")
+            spans = getattr(basis, f"spans_{axis}")
+            values = getattr(basis, f"basis_{axis}")
+            inner = np.linspace(low, high, n - degree + 1)
+            np.testing.assert_allclose(knots, np.r_[[low] * degree, inner, [high] * degree],
+                                       rtol=0, atol=1e-12)
+            assert values.shape == (t.size, degree + 1) and values.flags.c_contiguous
+            for i, ti in enumerate(t):
+                if not np.isfinite(ti):
+                    assert spans[i] == -1 and np.all(values[i] == 0.0)
+                    continue
+                full = np.array([naive_spline.basis(a, degree, ti, knots) for a in range(n)])
+                first = spans[i] - degree
+                np.testing.assert_allclose(values[i], full[first:first + degree + 1], atol=1e-12)
+                assert np.all(np.delete(full, np.arange(first, first + degree + 1)) == 0.0)
+            greville = np.array([knots[a + 1:a + degree + 1].mean() for a in range(n)])
+            np.testing.assert_allclose(getattr(basis, f"greville_{axis}"), greville,
+                                       rtol=0, atol=1e-12)
+
+
 def test_outside_region_is_nan_and_nonfinite_input_is_nan():
     rng = np.random.default_rng(6)
     s = random_surface(rng)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from o3d_terrain.errors import InputError
-from o3d_terrain.grid import INVALID, MEASURED, HeightGrid, quantize_points
+from o3d_terrain.grid import FILLED, INVALID, MEASURED, HeightGrid, quantize_points
 from o3d_terrain.terrain import default_control_points, fit_grid, fit_grid_detailed
 
 
@@ -37,6 +37,35 @@ def test_plane_is_reproduced_exactly_by_both_methods():
         np.testing.assert_allclose(s(xc[:, None], yc[None, :]), grid.z, atol=1e-6)
         np.testing.assert_allclose(s.slope_deg(5.0, 0.0), np.degrees(np.arctan(np.hypot(0.2, 0.1))),
                                    atol=1e-5)
+
+
+def test_fit_outputs_cover_measured_filled_and_empty_cells():
+    # the per-cell outputs of the robust fit on the grid: samples (world z) on measured and
+    # filled cells, NaN on empty ones; weight 0, not equalized and not an outlier where a cell
+    # takes no part in the fit (empty, or filled with filled_weight 0); an obstacle's cells
+    # are outliers and the plane's samples are kept
+    plane = lambda x, y: 0.2 * x - 0.1 * y + 3.0  # noqa: E731
+    grid, xc, yc = analytic_grid(plane, boxes=[(10.0, 2.0, 1.5, 1.2)], hole=(slice(30, 36),
+                                                                             slice(5, 12)))
+    state = grid.state.copy()
+    state[2:6, 20:30] = FILLED
+    grid = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, grid.z, grid.count, state)
+    truth = plane(xc[:, None], yc[None, :])
+    on_box = grid.z - truth > 0.5
+    for filled_weight in (0.3, 0.0):
+        fit = fit_grid_detailed(grid, control_points=(10, 10), filled_weight=filled_weight,
+                                terrain_prior=False)
+        empty = state == INVALID
+        assert np.isnan(fit.samples[empty]).all()
+        assert np.isfinite(fit.samples[~empty]).all()
+        in_fit = (state == MEASURED) | ((state == FILLED) & (filled_weight > 0))
+        assert np.all(fit.sample_weights[~in_fit] == 0.0) and np.all(fit.sample_weights[in_fit] > 0)
+        assert not fit.equalized[~in_fit].any() and not fit.outliers[~in_fit].any()
+        np.testing.assert_allclose(fit.samples[in_fit & ~on_box], truth[in_fit & ~on_box],
+                                   atol=1e-6)
+        if filled_weight == 0.0:  # cells outside the fit keep their sample
+            np.testing.assert_array_equal(fit.samples[state == FILLED], grid.z[state == FILLED])
+        assert fit.outliers[on_box].all() and not fit.outliers[in_fit & ~on_box].any()
 
 
 def test_paper_rational_weights_bend_a_tilted_plane():

@@ -14,6 +14,8 @@ import math
 import numba
 import numpy as np
 
+from .bspline import basis_funs_scratch, clamped_uniform_knots, find_span
+
 
 @numba.njit(cache=True, inline="always")
 def _second_difference(greville, a, h, coef):
@@ -336,3 +338,113 @@ def robust_pass(z, surface, base, valid_cells, compact, use_prior, prior_spread,
             if d > change:
                 change = d
     return moved, change
+
+
+@numba.njit(cache=True)
+def control_weights_cells(spans_x, basis_x, spans_y, basis_y, ratios, cells, n0, n1, coverage):
+    """The rational control-point weights of the robust fit, R = 0.5 + 0.5 * (num / coverage
+    where coverage > 1e-9, else 1), with num the projection (:func:`grid_project_cells`) of
+    the weight ratios ``ratios`` at the cells ``cells`` and ``coverage`` the projection of the
+    valid mask: one call instead of the projection and five numpy expressions (the same
+    operations, so the same values)."""
+    out = grid_project_cells(spans_x, basis_x, spans_y, basis_y, ratios, cells, n0, n1)
+    for a in range(n0):
+        for b in range(n1):
+            c = coverage[a, b]
+            v = out[a, b] / max(c, 1e-12) if c > 1e-9 else 1.0
+            out[a, b] = 0.5 + 0.5 * v
+    return out
+
+
+@numba.njit(cache=True)
+def scatter_cells(state, cells, weights, samples, equalized, z, surface, threshold, z_start,
+                  z0):
+    """The robust fit's per-cell vectors (one entry per cell of ``cells``) back onto the
+    (m0, m1) grid: sample weights (0 elsewhere), samples in world z (``samples`` + z0 at the
+    cells, ``z_start`` + z0 on the other valid cells (state != 0), NaN on empty ones), the
+    equalized mask and the outliers (z - surface > threshold); False elsewhere."""
+    m0, m1 = state.shape
+    weights_grid = np.zeros((m0, m1))
+    samples_grid = np.empty((m0, m1))
+    equalized_grid = np.zeros((m0, m1), np.bool_)
+    outliers = np.zeros((m0, m1), np.bool_)
+    for i in range(m0):
+        for j in range(m1):
+            samples_grid[i, j] = z_start[i, j] + z0 if state[i, j] != 0 else np.nan
+    for k in range(cells.shape[0]):
+        c = cells[k]
+        i = c // m1
+        j = c - i * m1
+        weights_grid[i, j] = weights[k]
+        samples_grid[i, j] = samples[k] + z0
+        equalized_grid[i, j] = equalized[k]
+        outliers[i, j] = z[k] - surface[k] > threshold
+    return weights_grid, samples_grid, equalized_grid, outliers
+
+
+@numba.njit(cache=True)
+def axis_basis(t, n_ctrl, degree, low, high):
+    """One axis of a grid basis in one call: the clamped uniform knots over [low, high]
+    (:func:`~o3d_terrain._kernels.bspline.clamped_uniform_knots`), the span and the degree + 1
+    non-zero basis values at every parameter of ``t`` (what ``basis_table(t, n_ctrl, degree,
+    knots, 0)`` gives, as an (m, degree + 1) table; non-finite t: span -1, values 0) and the
+    Greville abscissae (knots a + 1 .. a + degree summed left to right, then divided by the
+    degree). The same operations as the separate calls, so the same values."""
+    knots = clamped_uniform_knots(n_ctrl, degree, low, high)
+    m = t.shape[0]
+    spans = np.empty(m, np.int64)
+    values = np.zeros((m, degree + 1))
+    left = np.empty(degree + 1)
+    right = np.empty(degree + 1)
+    for i in range(m):
+        if not math.isfinite(t[i]):
+            spans[i] = -1
+            continue
+        s = find_span(n_ctrl, degree, t[i], knots)
+        spans[i] = s
+        basis_funs_scratch(s, t[i], degree, knots, values[i], left, right)
+    greville = np.empty(n_ctrl)
+    for a in range(n_ctrl):
+        g = knots[a + 1]
+        for r in range(2, degree + 1):
+            g += knots[a + r]
+        greville[a] = g / degree
+    return knots, spans, values, greville
+
+
+@numba.njit(cache=True)
+def gather_cells(base, z, measured, compact, spread, use_prior):
+    """The robust fit's per-cell vectors from flat (C-ordered) grids in one pass: the valid
+    cells (flat indices of base > 0, increasing), their samples ``z`` and base weights, the
+    positions in those vectors of the ``measured`` cells, and with ``use_prior`` the
+    ``compact`` mask and ``spread`` of the valid cells (else one-entry placeholders): what
+    ``np.flatnonzero`` and the fancy-indexed gathers give."""
+    count = 0
+    n_measured = 0
+    for c in range(base.shape[0]):
+        if base[c] > 0:
+            count += 1
+            if measured[c]:
+                n_measured += 1
+    cells = np.empty(count, np.int64)
+    z_cells = np.empty(count)
+    base_cells = np.empty(count)
+    measured_cells = np.empty(n_measured, np.int64)
+    size = count if use_prior else 1
+    compact_cells = np.zeros(size, np.bool_)
+    spread_cells = np.zeros(size)
+    k = 0
+    m = 0
+    for c in range(base.shape[0]):
+        if base[c] > 0:
+            cells[k] = c
+            z_cells[k] = z[c]
+            base_cells[k] = base[c]
+            if measured[c]:
+                measured_cells[m] = k
+                m += 1
+            if use_prior:
+                compact_cells[k] = compact[c]
+                spread_cells[k] = spread[c]
+            k += 1
+    return cells, z_cells, base_cells, measured_cells, compact_cells, spread_cells
