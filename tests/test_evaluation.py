@@ -324,6 +324,77 @@ def test_missing_peer_names_the_bench_extra(monkeypatch):
         peers.make_peer("csf")
 
 
+def _run_all():
+    """benchmarks/run_all.py as a module (the benchmarks folder is not a package)."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "run_all.py"
+    spec = importlib.util.spec_from_file_location("run_all_under_test", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_kitti_tilt_rotates_about_the_sensor_origin_and_keeps_labels(tmp_path, monkeypatch):
+    run_all = _run_all()
+    s10, c10 = math.sin(math.radians(10)), math.cos(math.radians(10))
+    pitch = run_all.tilt_rotation(0.0, 10.0)
+    # a ground point 10 m ahead of a level sensor 1.73 m up: lower by 10 sin 10° after pitching
+    assert np.allclose(pitch @ [10.0, 0.0, -1.73], [10 * c10 - 1.73 * s10, 0.0,
+                                                    -10 * s10 - 1.73 * c10])
+    roll = run_all.tilt_rotation(10.0, 0.0)
+    assert np.allclose(roll @ [0.0, 10.0, 0.0], [0.0, 10 * c10, 10 * s10])  # left side rises
+    for r in (pitch, roll, run_all.tilt_rotation(5.0, 20.0)):
+        assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
+    assert np.array_equal(run_all.tilt_rotation(0.0, 0.0), np.eye(3))
+
+    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
+    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
+    level, _ = run_all.load_frames("kitti")
+    tilted, failures = run_all.load_frames("kitti-tilt:pitch10")
+    assert not failures and [f.name for f in tilted] == [f.name for f in level]
+    for a, b in zip(level, tilted):
+        assert np.allclose(b.positions, a.positions @ pitch.T)
+        assert np.allclose(np.linalg.norm(b.positions, axis=1),
+                           np.linalg.norm(a.positions, axis=1))  # distances to the origin kept
+        assert not np.allclose(b.positions[:, 2], a.positions[:, 2])
+        for mask in ("is_ground", "scored", "obstacle"):
+            assert np.array_equal(getattr(b, mask), getattr(a, mask))
+        assert b.sensor_height == a.sensor_height and b.kind == a.kind
+    assert np.array_equal(run_all.load_frames("kitti-tilt:level")[0][0].positions,
+                          level[0].positions)
+    with pytest.raises(ValueError, match="unknown tilt 'pitch7'"):
+        run_all.load_frames("kitti-tilt:pitch7")
+
+
+def test_kitti_tilt_section_renders_only_when_run():
+    run_all = _run_all()
+    results = {"machine": {"cpu": "cpu", "cores": 2, "memory": "1 GiB", "system": "Linux",
+                           "python": "3", "versions": {}},
+               "date": "today", "command": "python benchmarks/run_all.py --write-docs",
+               "threads": 1, "repeats": 2, "segment": {}, "stages": {}, "terrain": None}
+    title = "### SemanticKITTI frames with a tilted sensor"
+    assert title not in run_all.render(results)
+
+    def frame(name, f1):
+        return {"name": name, "points": 10, "seconds": 0.01, "f1": f1}
+
+    for tilt in run_all.KITTI_TILTS:
+        results["segment"][f"kitti-tilt:{tilt}/o3d_terrain"] = {
+            "frames": [frame("000000", 0.9), frame("000001", 0.8)], "failures": []}
+    results["segment"]["kitti-tilt:level/csf"] = {"frames": [frame("000000", 0.5)],
+                                                  "failures": [{"name": "000001",
+                                                                "reason": "broken"}]}
+    results["segment"]["kitti-tilt:pitch20/csf"] = {"error": "timeout: no result within 9 s"}
+    text = run_all.render(results)
+    assert title in text and "about the sensor origin" in text
+    assert "| method | level | pitch 5° | pitch 10° | pitch 20° | roll 5° | roll 10° |" in text
+    assert "| **o3d_terrain** (`segment_terrain`) |" + " 85.0 |" * 6 in text
+    assert "| CSF | 50.0 (1 of 2 frames) | n/a | n/a | n/a | n/a | n/a |" in text
+    assert "- CSF, pitch 20°: n/a (timeout: no result within 9 s)" in text
+    assert "- CSF, level: skipped `000001`: broken" in text
+
+
 # ---------------------------------------------------------------------------------------------
 # real data (skipped without ../shared/data)
 
