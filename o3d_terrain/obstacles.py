@@ -319,7 +319,7 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
     heights, labels = resolve_heights_and_labels(frame, surface, labels, heights_above_terrain,
                                                  threshold)
     positions = np.asarray(frame.positions)
-    members, points, ix, iy = _k.obstacle_points(
+    members, points, member_heights, ix, iy = _k.obstacle_points(
         np.ascontiguousarray(labels), positions, np.ascontiguousarray(heights),
         int(TerrainLabel.OBSTACLE), np.inf if max_height is None else float(max_height),
         float(cell_size))
@@ -332,7 +332,7 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
         component = _dbscan_components(points, float(eps), min(3, int(min_points)))
     n_components = int(component.max()) + 1 if len(component) else 0
     count, sums, z_low, z_high, h_high = _k.cluster_moments(
-        component, points[:, 0], points[:, 1], points[:, 2], heights[members], n_components)
+        component, points[:, 0], points[:, 1], points[:, 2], member_heights, n_components)
     keep = (count >= min_points) & (h_high >= min_height)
     kept = np.flatnonzero(keep)
     new_id = np.full(max(n_components, 1), -1, np.int64)
@@ -347,9 +347,15 @@ def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = No
         hull, hull_starts = _hull_candidates(points, point_ids, ix, iy, nx, ny, len(kept))
         centers, sizes, yaws = _oriented_boxes(points[hull, :2], hull_starts)
     centroids = sums[kept] / count[kept][:, None]
+    heights_kept = h_high[kept]
     obstacles = _obstacles_from_arrays(indices_all, starts, centroids, centers, sizes, yaws,
-                                       h_high[kept], z_low[kept], z_high[kept])
-    return ObstacleSet(obstacles, cluster_ids, method, options)
+                                       heights_kept, z_low[kept], z_high[kept])
+    result = ObstacleSet(obstacles, cluster_ids, method, options)
+    # the arrays behind the obstacles' boxes and heights, for the cost map (not a field: it
+    # adds nothing to the value; the box centres and sizes are the same memory as the
+    # obstacles' own arrays)
+    object.__setattr__(result, "_arrays", (centers, sizes, yaws, heights_kept))
+    return result
 
 
 def _obstacles_from_arrays(indices_all, starts, centroids, centers, sizes, yaws, heights,

@@ -91,6 +91,26 @@ def test_cells_under_obstacles_are_lethal_and_flat_free_ground_is_cheapest(obsta
     assert np.median(cost_map.cost[free]) < 0.05
 
 
+def test_obstacle_set_and_a_list_of_its_obstacles_give_the_same_cost_map(obstacle_scene):
+    # the cost map reads an ObstacleSet's boxes and heights from its arrays, a plain sequence
+    # of obstacles from the values: both must mark the same cells
+    scene, positions = obstacle_scene
+    surface = flat_surface()
+    labels, heights = segment_points(surface, positions)
+    obstacles = detect_obstacles(positions, labels=labels, heights_above_terrain=heights)
+    assert len(obstacles) >= 2
+    common = dict(region=(-5, 35, -15, 15), labels=labels, heights_above_terrain=heights)
+    from_set = traversability_cost(surface, positions, obstacles=obstacles, **common)
+    from_list = traversability_cost(surface, positions, obstacles=list(obstacles), **common)
+    without = traversability_cost(surface, positions, **common)
+    for name in ("cost", "state", "slope_deg", "step_height", "roughness"):
+        np.testing.assert_array_equal(getattr(from_set, name), getattr(from_list, name))
+    # the boxes filled cells that no obstacle point falls in
+    assert (from_set.state == LETHAL).sum() > (without.state == LETHAL).sum()
+    unseen_lethal = (from_set.state == LETHAL) & ~from_set.known
+    assert unseen_lethal.any()
+
+
 def test_cells_steeper_than_the_profile_are_lethal(ramp_scene):
     scene, positions, surface = ramp_scene
     profile = VehicleProfile(name="test", max_slope_deg=8.0, max_step_height=0.3,

@@ -644,28 +644,40 @@ def grid_box_candidates(cluster, ix, iy, cell_labels, x, y, n_clusters):
     get -1 - slot) instead of filling a fresh whole-grid table. Slots are numbered in point
     order and ties go to the first point. Returns the candidates' x, y grouped by cluster, in
     point order within a cluster, and ``starts`` (n_clusters + 1,).
+
+    Each point's slot is kept from the numbering pass (an int32 per point), so the extremes
+    pass reads it instead of the label image again, and the candidates are counted per cluster
+    as they are marked (one pass over the points fewer): 1.06-1.23 -> 0.89-1.06 ms on KITTI
+    000000 (52k points, medians).
     """
     m = cluster.shape[0]
     n_slots = 0
+    slot = np.empty(m, np.int32)
     for k in range(m):
-        if cluster[k] >= 0 and cell_labels[ix[k], iy[k]] > 0:
-            cell_labels[ix[k], iy[k]] = -1 - n_slots
+        if cluster[k] < 0:
+            slot[k] = -1
+            continue
+        v = cell_labels[ix[k], iy[k]]
+        if v > 0:
+            v = -1 - n_slots
+            cell_labels[ix[k], iy[k]] = v
             n_slots += 1
+        slot[k] = -1 - v
     best = np.full((n_slots, 8), -1, np.int64)
     value = np.empty((n_slots, 8))
     for k in range(m):
-        if cluster[k] < 0:
+        c = slot[k]
+        if c < 0:
             continue
-        c = -1 - cell_labels[ix[k], iy[k]]
         _keep_extremes(best, value, c, k, x[k], y[k])
     mark = np.zeros(m, np.bool_)
+    starts = np.zeros(n_clusters + 1, np.int64)
     for c in range(n_slots):
         for d in range(8):
-            mark[best[c, d]] = True
-    starts = np.zeros(n_clusters + 1, np.int64)
-    for k in range(m):
-        if mark[k]:
-            starts[cluster[k] + 1] += 1
+            k = best[c, d]
+            if not mark[k]:
+                mark[k] = True
+                starts[cluster[k] + 1] += 1
     for g in range(n_clusters):
         starts[g + 1] += starts[g]
     fill = starts[:-1].copy()
@@ -687,7 +699,9 @@ def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell
 
     Selects the points labelled ``obstacle_label`` with finite x, y, z and height, and height
     <= ``max_height`` (use inf for no limit). Returns ``members`` (their indices, increasing),
-    ``points`` (M, 3) copies, and the cells ``ix``, ``iy`` of side ``cell_size`` counted from
+    ``points`` (M, 3) copies, their heights ``member_heights`` (M,) (gathered here instead of a
+    NumPy fancy index afterwards: ~0.07 ms for 52k points), and the cells ``ix``, ``iy`` of
+    side ``cell_size`` counted from
     the lowest x and y of the selected points (floor((x - x_low) / cell_size)). The first
     pass writes the indices and copies into arrays sized for the whole cloud (only the first
     M rows are touched) and returns views of them, so the cloud is read once.
@@ -695,6 +709,7 @@ def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell
     n = labels.shape[0]
     members = np.empty(n, np.int64)
     points = np.empty((n, 3))
+    member_heights = np.empty(n)
     m = 0
     x_low = np.inf
     y_low = np.inf
@@ -712,6 +727,7 @@ def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell
         points[m, 0] = x
         points[m, 1] = y
         points[m, 2] = z
+        member_heights[m] = h
         m += 1
         if x < x_low:
             x_low = x
@@ -722,7 +738,7 @@ def obstacle_points(labels, positions, heights, obstacle_label, max_height, cell
     for t in range(m):
         ix[t] = int(math.floor((points[t, 0] - x_low) / cell_size))
         iy[t] = int(math.floor((points[t, 1] - y_low) / cell_size))
-    return members[:m], points[:m], ix, iy
+    return members[:m], points[:m], member_heights[:m], ix, iy
 
 
 @numba.njit(cache=True)
