@@ -7,6 +7,9 @@ Drop-in use in Open3D code::
     ground = pcd.select_by_index(inliers)
     slope = surface.slope_deg(x, y)
 
+    obstacles = o3d_terrain.detect_obstacles(pcd, surface=surface)   # .indices, boxes, heights
+    costmap = o3d_terrain.traversability_cost(surface, pcd, vehicle="offroad_suv")
+
 Stages compose into pipelines (``o3d-terrain run pipelines/lidar_terrain.yaml``) or run as
 plain calls: ``frame = GridQuantize(cell_size=0.5)(pcd)``.
 """
@@ -20,6 +23,14 @@ from .io import read_cloud, write_cloud
 from .stages import STAGES, GridQuantize, ReadCloud
 from .pipeline import Pipeline, load_pipeline, parse_pipeline
 from .writers import WRITERS
+from .spline import TerrainSurface, make_lsq_surface
+from .terrain import fit_grid, fit_grid_detailed
+from .segment import TerrainLabel
+from .noise import RangeNoise
+from .api import fit_terrain, segment_terrain
+from .obstacles import DetectedObstacle, ObstacleSet, detect_obstacles
+from .traversability import CostMap, VehicleProfile, load_vehicle_profile, traversability_cost
+from .tracking import ObstacleTracker
 
 __all__ = [
     "__version__",
@@ -28,11 +39,9 @@ __all__ = [
     "read_cloud", "write_cloud",
     "STAGES", "GridQuantize", "ReadCloud",
     "Pipeline", "load_pipeline", "parse_pipeline", "WRITERS",
+    "TerrainSurface", "make_lsq_surface", "fit_grid", "fit_grid_detailed",
+    "TerrainLabel", "RangeNoise", "fit_terrain", "segment_terrain",
+    "DetectedObstacle", "ObstacleSet", "detect_obstacles",
+    "CostMap", "VehicleProfile", "load_vehicle_profile", "traversability_cost",
+    "ObstacleTracker",
 ]
-from .spline import TerrainSurface, make_lsq_surface
-from .terrain import fit_grid, fit_grid_detailed
-from .segment import TerrainLabel
-from .api import fit_terrain, segment_terrain
-
-__all__ += ["TerrainSurface", "make_lsq_surface", "fit_grid", "fit_grid_detailed",
-            "TerrainLabel", "fit_terrain", "segment_terrain"]
