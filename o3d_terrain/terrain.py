@@ -137,7 +137,12 @@ def fit_grid_detailed(
         threshold widened by half that rise, and are not equalized, so steep narrow terrain
         such as a berm is not rejected as an obstacle; their sample is max(eq. 1, mean z -
         noise_floor) (all their points are terrain) when the grid carries the mean
-        (docs/algorithm.md). False = the plain robust weights on eq. 1 samples.
+        (docs/algorithm.md). With ``positions`` and ``ground_layer``, connected cells whose
+        sample is their ground layer, with nothing lower around them and any points above
+        the layer at least :data:`o3d_terrain.ground_layer.OVERHANG_CLEARANCE` higher (ground
+        under a canopy, :func:`o3d_terrain.ground_layer.overhung_ground_cells`) get the same
+        protection with the threshold widened by half the layer, keeping their sample.
+        False = the plain robust weights on eq. 1 samples.
     max_slope_deg: steepest terrain between neighbouring cells (degrees).
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
