@@ -32,8 +32,8 @@ from ._kernels import ground_layer as _gl
 from .errors import InputError
 from .grid import MEASURED, HeightGrid
 
-__all__ = ["ground_layer_samples", "default_layer", "overhung_ground_cells",
-           "MIN_LAYER_FRACTION", "OVERHANG_CLEARANCE"]
+__all__ = ["MIN_LAYER_FRACTION", "OVERHANG_CLEARANCE", "default_layer", "ground_layer_samples",
+           "overhung_ground_cells"]
 
 #: the smallest share of a cell's points its ground layer must hold
 MIN_LAYER_FRACTION = 0.2

@@ -4,12 +4,16 @@ checked against the exact terrain of small synthetic clouds."""
 import numpy as np
 import pytest
 
+import o3d_terrain.terrain as terrain_module
 from o3d_terrain import InputError
 from o3d_terrain.api import fit_terrain, segment_terrain
 from o3d_terrain.grid import MEASURED, HeightGrid, quantize_points
-from o3d_terrain.ground_layer import (OVERHANG_CLEARANCE, default_layer, ground_layer_samples,
-                                      overhung_ground_cells)
-import o3d_terrain.terrain as terrain_module
+from o3d_terrain.ground_layer import (
+    OVERHANG_CLEARANCE,
+    default_layer,
+    ground_layer_samples,
+    overhung_ground_cells,
+)
 from o3d_terrain.terrain import AUTO_MAX_SPACING, default_control_points, fit_grid
 
 
@@ -178,7 +182,7 @@ def test_overhung_ground_cells_needs_a_free_gap_and_nothing_lower_around(columns
     assert out[2, 2] == expected
     assert out.sum() == int(expected)  # only connected, not compact cells are judged
     assert np.array_equal(protected, compact | out)
-    assert spread[2, 2] == (0.12 if expected else 0.5) and (spread[out == False] == 0.5).all()  # noqa: E712
+    assert spread[2, 2] == (0.12 if expected else 0.5) and (spread[~out] == 0.5).all()
     # a sample lifted above the layer (eq. 1 in the canopy) is never the cell's ground
     lifted = samples.copy()
     lifted[2, 2] += 2 * layer

@@ -117,8 +117,7 @@ def overhung_ground(positions, x_min, y_min, cell_size, z, lowest, highest, stat
                     b = j + dj
                     if b < 0 or b >= ny or (di == 0 and dj == 0) or state[a, b] != measured:
                         continue
-                    if lowest[a, b] < least:
-                        least = lowest[a, b]
+                    least = min(least, lowest[a, b])
             if not lo <= least + tolerance:
                 continue
             hi = highest[i, j]
