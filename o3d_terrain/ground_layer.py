@@ -32,13 +32,20 @@ from ._kernels import ground_layer as _gl
 from .errors import InputError
 from .grid import MEASURED, HeightGrid
 
-__all__ = ["ground_layer_samples", "default_layer", "MIN_LAYER_FRACTION"]
+__all__ = ["MIN_LAYER_FRACTION", "OVERHANG_CLEARANCE", "default_layer", "ground_layer_samples",
+           "overhung_ground_cells"]
 
 #: the smallest share of a cell's points its ground layer must hold
 MIN_LAYER_FRACTION = 0.2
 
 #: the fewest points of a ground layer (one point is an outlier, not a layer)
 MIN_LAYER_POINTS = 2
+
+#: free height (m) between a cell's ground layer and the lowest point above it that makes the
+#: points above an overhang (a canopy) rather than an object standing in the cell: walls,
+#: trunks, bushes and people return continuously from their base (a vehicle lidar's rings are
+#: 1 m apart on a wall only beyond about 140 m)
+OVERHANG_CLEARANCE = 1.0
 
 
 def default_layer(cell_size: float, *, noise_floor: float = 0.03,
@@ -81,3 +88,48 @@ def ground_layer_samples(grid: HeightGrid, positions: np.ndarray, *,
         np.ascontiguousarray(grid.lowest, dtype=np.float64),
         np.ascontiguousarray(grid.count), grid.state == MEASURED, float(layer),
         MIN_LAYER_POINTS, float(min_fraction))
+
+
+def overhung_ground_cells(grid: HeightGrid, positions: np.ndarray, connected: np.ndarray,
+                          compact: np.ndarray, samples: np.ndarray, *, layer: float,
+                          tolerance: float, clearance: float = OVERHANG_CLEARANCE,
+                          spread: np.ndarray | None = None, widen: float = 0.0
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(overhung, protected): the (nx, ny) bool cells of the terrain prior's ``connected``
+    cells, not ``compact``, whose sample is their ground: the sample (``samples``, e.g. from
+    :func:`ground_layer_samples`) lies within ``layer`` of the lowest point, that lowest point
+    is at most ``tolerance`` above the lowest point of every measured 8-neighbour (nothing
+    lower around it), and every point of the cell above the layer (if any) lies at least
+    ``clearance`` above the layer's top (a canopy or an overhang over the ground, not an
+    object standing on it); and ``compact | overhung``. Such a cell is ground, bare or under
+    a canopy: its points need not all be terrain, or may be too few for the terrain prior's
+    compact test, but its sample is its ground.
+
+    positions: the (N, 3) points the grid was made from (same coordinates); read only when a
+        candidate holds points at least ``clearance`` above its layer.
+    spread: optional (nx, ny) float64 array set to ``widen`` on the overhung cells (in place).
+    """
+    if grid.lowest is None or grid.highest is None:
+        raise InputError("overhung_ground_cells needs a grid with per-cell lowest and highest "
+                         "points (made by quantize_points)")
+    for name, value in (("layer", layer), ("tolerance", tolerance), ("clearance", clearance)):
+        if not (math.isfinite(value) and value >= 0):
+            raise InputError(f"{name} must be a finite number of metres >= 0, got {value!r}")
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] < 3:
+        raise InputError(f"positions must be (N, 3), got {p.shape}")
+    shape = grid.z.shape
+    for name, mask in (("connected", connected), ("compact", compact), ("samples", samples)):
+        if np.shape(mask) != shape:
+            raise InputError(f"{name} must have the grid's shape {shape}, got {np.shape(mask)}")
+    if spread is None:
+        spread = np.zeros(shape)
+    elif spread.shape != shape or spread.dtype != np.float64 or not spread.flags.c_contiguous:
+        raise InputError(f"spread must be a C-contiguous float64 array of shape {shape}")
+    return _gl.overhung_ground(
+        np.ascontiguousarray(p), grid.x_min, grid.y_min, grid.cell_size,
+        np.ascontiguousarray(samples, dtype=np.float64),
+        np.ascontiguousarray(grid.lowest, dtype=np.float64),
+        np.ascontiguousarray(grid.highest, dtype=np.float64), grid.state, MEASURED,
+        np.ascontiguousarray(connected, dtype=bool), np.ascontiguousarray(compact, dtype=bool),
+        float(layer), float(tolerance), float(clearance), spread, float(widen))

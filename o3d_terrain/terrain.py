@@ -28,7 +28,7 @@ from .errors import InputError
 from ._kernels import ground as _ground
 from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
-from .ground_layer import default_layer, ground_layer_samples
+from .ground_layer import default_layer, ground_layer_samples, overhung_ground_cells
 from .noise import GridNoise, RangeNoise
 from .spline import GridBasis, TerrainSurface
 
@@ -137,7 +137,12 @@ def fit_grid_detailed(
         threshold widened by half that rise, and are not equalized, so steep narrow terrain
         such as a berm is not rejected as an obstacle; their sample is max(eq. 1, mean z -
         noise_floor) (all their points are terrain) when the grid carries the mean
-        (docs/algorithm.md). False = the plain robust weights on eq. 1 samples.
+        (docs/algorithm.md). With ``positions`` and ``ground_layer``, connected cells whose
+        sample is their ground layer, with nothing lower around them and any points above
+        the layer at least :data:`o3d_terrain.ground_layer.OVERHANG_CLEARANCE` higher (ground
+        under a canopy, :func:`o3d_terrain.ground_layer.overhung_ground_cells`) get the same
+        protection with the threshold widened by half the layer, keeping their sample.
+        False = the plain robust weights on eq. 1 samples.
     max_slope_deg: steepest terrain between neighbouring cells (degrees).
     gap_slope_deg: steepest terrain assumed across cells without data (degrees).
     max_obstacle_width: widest obstacle (m): the lowest cell within half this distance seeds
@@ -193,7 +198,8 @@ def fit_grid_detailed(
     yl = grid.y_centers - y0
     region_local = (x_min - x0, x_max - x0, y_min - y0, y_max - y0)
     samples = grid.z
-    if positions is not None and ground_layer and method == "robust":
+    use_layer = positions is not None and ground_layer and method == "robust"
+    if use_layer:
         layer = default_layer(grid.cell_size, noise_floor=noise_floor,
                               max_slope_deg=max_slope_deg)
         samples, _ = ground_layer_samples(grid, positions, layer=layer)
@@ -208,11 +214,20 @@ def fit_grid_detailed(
         prior = None
         compact = np.zeros((0, 0), bool)
         if terrain_prior:
-            _, compact, rise = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
-                                              max_obstacle_width, 3.0 * noise_floor)
+            connected, compact, rise = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
+                                                      max_obstacle_width, 3.0 * noise_floor)
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow)
-            prior = (compact, 0.5 * rise)
+            protected, spread = compact, 0.5 * rise
+            if use_layer and grid.highest is not None:
+                # ground under a canopy: connected cells whose sample is their ground layer,
+                # nothing lower around them and a free gap above (docs/algorithm.md, "Ground
+                # under a canopy"); widened by half the layer (its points' spread about the
+                # sample), not equalized; their sample stays the layer's (not the cell mean)
+                _, protected = overhung_ground_cells(
+                    grid, positions, connected, compact, samples, layer=layer,
+                    tolerance=3.0 * noise_floor, spread=spread, widen=0.5 * layer)
+            prior = (protected, spread)
         # samples z - z0 (0 where invalid) and base weights (1 measured, filled_weight filled);
         # with the prior and the grid's mean, compact cells take max(z, mean - noise_floor):
         # all points of a compact cell are terrain, and eq. 1's "- sigma" (meant to discount

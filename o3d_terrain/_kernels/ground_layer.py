@@ -72,3 +72,80 @@ def ground_layer_from_sums(z, lowest, count, measured, layer_count, layer_sum, l
                 samples[i, j] = layer_sum[i, j] / n
                 replaced[i, j] = True
     return samples, replaced
+
+
+@numba.njit(cache=True)
+def overhung_ground(positions, x_min, y_min, cell_size, z, lowest, highest, state, measured,
+                    connected, compact, layer, tolerance, clearance, spread, widen):
+    """The cells of a connected terrain that are not ``compact`` but whose ground layer is
+    their sample: ``connected`` and not ``compact``, the sample ``z`` within the layer
+    (z <= lowest + layer), the lowest point at most ``tolerance`` above the lowest point of
+    every ``measured`` 8-neighbour (``state`` == ``measured``, finite lowest point: nothing
+    lower around it), and no point in (top, top + clearance) with top = lowest + layer (every
+    point above the layer, if any, leaves a free gap: a canopy or an overhang; a wall, a
+    trunk or a bush returns continuously from its base).
+
+    Returns (overhung, protected = compact | overhung) and sets ``spread`` to ``widen`` on
+    the overhung cells (in place). A cell whose ``highest`` point is within the layer, or at
+    least ``clearance`` above its top with nothing between, is decided here; only if some
+    candidate's highest point lies at least ``clearance`` above its top, one pass over the
+    rows (x, y, z) of ``positions`` (points outside the grid or with a non-finite coordinate
+    are skipped; the cell is computed only for points between the lowest pending top and the
+    highest pending top + clearance) looks for a point in the gap."""
+    nx, ny = z.shape
+    m = nx * ny
+    top = np.full(m, np.inf)  # finite on undecided candidates
+    overhung = np.zeros((nx, ny), np.bool_)
+    protected = compact.copy()
+    pending = False
+    low_top = np.inf  # the pending tops' range: only points within it (+ clearance) matter
+    high_top = -np.inf
+    for i in range(nx):
+        for j in range(ny):
+            if not connected[i, j] or compact[i, j] or state[i, j] != measured:
+                continue
+            lo = lowest[i, j]
+            t = lo + layer
+            if not z[i, j] <= t:
+                continue
+            least = np.inf
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0) or state[a, b] != measured:
+                        continue
+                    least = min(least, lowest[a, b])
+            if not lo <= least + tolerance:
+                continue
+            hi = highest[i, j]
+            if hi <= t:  # every point within the layer
+                overhung[i, j] = True
+            elif hi - t >= clearance:  # points above the gap; one may lie inside it
+                overhung[i, j] = True
+                top[i * ny + j] = t
+                pending = True
+                low_top = min(low_top, t)
+                high_top = max(high_top, t)
+    if pending:
+        flat = overhung.reshape(m)
+        high_gap = high_top + clearance
+        for k in range(positions.shape[0]):
+            h = positions[k, 2]
+            if not (h > low_top and h < high_gap):  # in no pending cell's gap (or NaN)
+                continue
+            c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+            if c < 0:
+                continue
+            t = top[c]  # inf unless pending
+            if h > t and h - t < clearance:
+                flat[c] = False
+                top[c] = np.inf
+    for i in range(nx):
+        for j in range(ny):
+            if overhung[i, j]:
+                protected[i, j] = True
+                spread[i, j] = widen
+    return overhung, protected
