@@ -39,10 +39,12 @@ class HeightGrid:
     skipped_nonfinite: int = 0  # points skipped for a NaN or infinite coordinate
     skipped_outside: int = 0  # finite points outside the grid's region
     # ground-layer statistics (o3d_terrain.ground_layer) for the thickness ``layer`` (m):
-    # number and sum of the z values within [lowest, lowest + layer] per cell
+    # number and sum of the z values within [lowest, lowest + layer] per cell, and the lowest
+    # z above lowest + layer (inf where none: the canopy rule's gap above the layer)
     layer: float = 0.0
     layer_count: np.ndarray | None = None
     layer_sum: np.ndarray | None = None
+    layer_above: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -137,7 +139,8 @@ def quantize_points(
 ) -> HeightGrid:
     """Quantize points into a :class:`HeightGrid` (eq. 1). Non-finite points are skipped.
     ``layer`` > 0: also the ground-layer statistics for that thickness (m) in the same pass
-    (used by :func:`o3d_terrain.ground_layer.ground_layer_samples` instead of its own)."""
+    (used by :func:`o3d_terrain.ground_layer.ground_layer_samples` and
+    :func:`~o3d_terrain.ground_layer.overhung_ground_cells` instead of their own)."""
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise InputError(f"positions must be (N, 3), got {positions.shape}")
@@ -165,9 +168,10 @@ def quantize_points(
             and layer >= 0):
         raise InputError(f"layer must be a finite number of metres >= 0, got {layer!r}")
     layer = float(layer)
-    height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum = \
-        _grid.quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer,
-                       _exact_inverse(cell_size))
+    (height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum,
+     layer_above) = _grid.quantize(positions, x_min, y_min, cell_size, nx, ny, min_points,
+                                   fill_empty, layer, _exact_inverse(cell_size))
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
                       highest, mean, int(nonfinite), int(outside), layer,
-                      layer_count if layer else None, layer_sum if layer else None)
+                      layer_count if layer else None, layer_sum if layer else None,
+                      layer_above if layer else None)

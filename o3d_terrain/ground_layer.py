@@ -106,7 +106,8 @@ def overhung_ground_cells(grid: HeightGrid, positions: np.ndarray, connected: np
     compact test, but its sample is its ground.
 
     positions: the (N, 3) points the grid was made from (same coordinates); read only when a
-        candidate holds points at least ``clearance`` above its layer.
+        candidate holds points at least ``clearance`` above its layer and the grid does not
+        carry the statistics for this ``layer`` (``quantize_points(layer=...)``).
     spread: optional (nx, ny) float64 array set to ``widen`` on the overhung cells (in place).
     """
     if grid.lowest is None or grid.highest is None:
@@ -115,10 +116,15 @@ def overhung_ground_cells(grid: HeightGrid, positions: np.ndarray, connected: np
     for name, value in (("layer", layer), ("tolerance", tolerance), ("clearance", clearance)):
         if not (math.isfinite(value) and value >= 0):
             raise InputError(f"{name} must be a finite number of metres >= 0, got {value!r}")
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] < 3:
-        raise InputError(f"positions must be (N, 3), got {p.shape}")
     shape = grid.z.shape
+    if grid.layer_above is not None and grid.layer == layer:  # gathered by the grid's pass
+        p = np.zeros((0, 3))
+        above = np.ascontiguousarray(grid.layer_above, dtype=np.float64)
+    else:
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] < 3:
+            raise InputError(f"positions must be (N, 3), got {p.shape}")
+        above = np.zeros((0, 0))
     for name, mask in (("connected", connected), ("compact", compact), ("samples", samples)):
         if np.shape(mask) != shape:
             raise InputError(f"{name} must have the grid's shape {shape}, got {np.shape(mask)}")
@@ -130,6 +136,6 @@ def overhung_ground_cells(grid: HeightGrid, positions: np.ndarray, connected: np
         np.ascontiguousarray(p), grid.x_min, grid.y_min, grid.cell_size,
         np.ascontiguousarray(samples, dtype=np.float64),
         np.ascontiguousarray(grid.lowest, dtype=np.float64),
-        np.ascontiguousarray(grid.highest, dtype=np.float64), grid.state, MEASURED,
+        np.ascontiguousarray(grid.highest, dtype=np.float64), above, grid.state, MEASURED,
         np.ascontiguousarray(connected, dtype=bool), np.ascontiguousarray(compact, dtype=bool),
         float(layer), float(tolerance), float(clearance), spread, float(widen))

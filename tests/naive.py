@@ -75,6 +75,42 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
     return height, count, state, lowest, highest, means
 
 
+def grid_layer_statistics(positions, x_min, y_min, cell_size, nx, ny, layer):
+    """The ground-layer statistics of the grid's pass with plain Python loops: per cell the
+    number and the sum (in point order) of the z values within [lowest, lowest + layer] and
+    the lowest z above lowest + layer (inf where none). Points are binned as in
+    :func:`grid_quantize` (non-finite and outside points skipped)."""
+    cells = [[[] for _ in range(ny)] for _ in range(nx)]
+    for x, y, z in positions:
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            continue
+        fx = (x - x_min) / cell_size
+        fy = (y - y_min) / cell_size
+        ix, iy = int(math.floor(fx)), int(math.floor(fy))
+        if ix == nx and fx <= nx:
+            ix = nx - 1
+        if iy == ny and fy <= ny:
+            iy = ny - 1
+        if 0 <= ix < nx and 0 <= iy < ny:
+            cells[ix][iy].append(z)
+    count = np.zeros((nx, ny), np.int64)
+    total = np.zeros((nx, ny))
+    above = np.full((nx, ny), np.inf)
+    for ix in range(nx):
+        for iy in range(ny):
+            zs = cells[ix][iy]
+            if not zs:
+                continue
+            top = min(zs) + layer
+            for v in zs:
+                if v <= top:
+                    count[ix, iy] += 1
+                    total[ix, iy] += v
+                elif v < above[ix, iy]:
+                    above[ix, iy] = v
+    return count, total, above
+
+
 def cone_fill(height, measured, cell_size, slope):
     """Plain reference of the lower cone envelope min_m (height[m] + slope * d(c, m)), d the
     8-neighbour chamfer distance, by a forward and a backward raster sweep, kept equal to

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
-
+from naive import grid_layer_statistics as naive_layer_statistics
 from naive import grid_quantize as naive_quantize
+
 from o3d_terrain import GridQuantize, InputError, quantize_points
 from o3d_terrain.errors import ConfigError
 from o3d_terrain.grid import FILLED, INVALID, MEASURED, HeightGrid
@@ -20,6 +21,30 @@ def test_kernel_matches_reference_exactly(rng):
     np.testing.assert_array_equal(grid.highest, highest)
     np.testing.assert_array_equal(grid.mean, mean)
     assert np.isinf(highest).any() and (highest[np.isfinite(highest)] > z[np.isfinite(highest)]).any()
+
+
+@pytest.mark.parametrize("layer", [0.24, 1.5])
+def test_layer_statistics_match_reference_exactly(rng, layer):
+    # heavy-tailed heights: cells hold points within, just above and far above their layer
+    pts = np.c_[rng.uniform(-4, 4, (800, 2)), rng.exponential(0.5, 800)]
+    pts[::89] = np.nan
+    pts[7, 2] = -np.inf
+    pts[11, :2] = 50.0  # outside the region
+    pts[13] = pts[12] + [0.0, 0.0, layer]  # on the top of the layer if 12 is the lowest
+    region = (-4.0, 4.0, -4.0, 4.0)
+    for cell in (0.5, 0.7):  # multiplied by 1 / cell and divided by the cell size
+        grid = quantize_points(pts, cell_size=cell, region=region, layer=layer)
+        x0, _, y0, _ = grid.region
+        count, total, above = naive_layer_statistics(pts, x0, y0, cell, grid.nx, grid.ny, layer)
+        assert grid.layer == layer
+        np.testing.assert_array_equal(grid.layer_count, count)
+        np.testing.assert_array_equal(grid.layer_sum, total)
+        np.testing.assert_array_equal(grid.layer_above, above)
+        assert np.isfinite(above).sum() > 20 and np.isinf(above[grid.count > 1]).any()
+        assert np.isinf(above[grid.count == 1]).all()
+        assert (above[np.isfinite(above)] > (grid.lowest + layer)[np.isfinite(above)]).all()
+    plain = quantize_points(pts, cell_size=0.5, region=region)
+    assert plain.layer_count is None and plain.layer_sum is None and plain.layer_above is None
 
 
 @pytest.mark.parametrize("min_points,fill", [(3, True), (1, False)])

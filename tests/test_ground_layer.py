@@ -136,6 +136,20 @@ def test_statistics_of_the_grid_pass_give_the_same_samples(rng):
         np.testing.assert_array_equal(got, want)
     with pytest.raises(InputError, match="layer"):
         quantize_points(cloud, cell_size=0.5, layer=-0.1)
+    # and the same canopy cells (overhung_ground_cells) without reading the points
+    samples = expected[0]
+    connected = plain.state == MEASURED
+    compact = np.zeros(plain.z.shape, bool)
+    compact[::7] = True
+    want = overhung_ground_cells(plain, cloud, connected, compact, samples, layer=layer,
+                                 tolerance=0.09)
+    got = overhung_ground_cells(gathered, cloud[:0], connected, compact, samples, layer=layer,
+                                tolerance=0.09)
+    assert want[0].sum() > 20
+    high = np.isfinite(plain.highest) & (plain.highest - plain.lowest - layer >= 1.0)
+    assert (want[0] & high).any() and (~want[0] & high & connected & ~compact).any()
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
     # another thickness falls back to the pass over the points
     for got, want in zip(ground_layer_samples(gathered, cloud, layer=0.5),
                          ground_layer_samples(plain, cloud, layer=0.5)):
@@ -161,6 +175,8 @@ def _cells_cloud(columns):
     ((0.35, 0.6, 0.9, 1.2, 1.5), 0.0, False),  # a bush or a wall standing in the cell
     ((0.8,), 0.0, False),  # a point closer than the clearance above the layer
     ((5.0,), 0.4, False),  # a canopy over a raised layer (the top of a low object)
+    ((1.27, 3.0), 0.0, False),  # 0.99 m above the layer's top (0.28 m): inside the gap
+    ((1.29, 3.0), 0.0, True),  # 1.01 m above it: a free gap
 ])
 def test_overhung_ground_cells_needs_a_free_gap_and_nothing_lower_around(columns, raise_by,
                                                                           expected):
@@ -183,6 +199,18 @@ def test_overhung_ground_cells_needs_a_free_gap_and_nothing_lower_around(columns
     assert out.sum() == int(expected)  # only connected, not compact cells are judged
     assert np.array_equal(protected, compact | out)
     assert spread[2, 2] == (0.12 if expected else 0.5) and (spread[~out] == 0.5).all()
+    # the grid's pass with this layer gathers the lowest point above it: same cells, no
+    # points read (an empty cloud); another layer falls back to the pass over the points
+    gathered = quantize_points(cloud, cell_size=1.0, region=(0, 5, 0, 5), layer=layer)
+    for kept, points in ((gathered, cloud[:0]), (grid, cloud)):
+        got = overhung_ground_cells(kept, points, connected, compact, samples, layer=layer,
+                                    tolerance=0.09)
+        np.testing.assert_array_equal(got[0], out)
+        np.testing.assert_array_equal(got[1], protected)
+    other = quantize_points(cloud, cell_size=1.0, region=(0, 5, 0, 5), layer=0.1)
+    with pytest.raises(InputError, match="positions"):
+        overhung_ground_cells(other, cloud[:, :2], connected, compact, samples, layer=layer,
+                              tolerance=0.09)
     # a sample lifted above the layer (eq. 1 in the canopy) is never the cell's ground
     lifted = samples.copy()
     lifted[2, 2] += 2 * layer

@@ -52,9 +52,10 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
              inverse=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
     and mean z of the rows (x, y, z) of an (N, 3) array (read in place); with ``layer`` > 0
-    also the number and the sum of the z values within [lowest, lowest + layer] per cell (the
-    ground-layer statistics of :mod:`o3d_terrain.ground_layer`, summed in point order; empty
-    arrays otherwise).
+    also the number and the sum of the z values within [lowest, lowest + layer] per cell and
+    the lowest z above lowest + layer (inf where none): the ground-layer statistics of
+    :mod:`o3d_terrain.ground_layer`, summed in point order, and what its canopy rule needs
+    (empty arrays otherwise).
 
     Each point's cell is :func:`_cell`, found in the first pass over the points and kept for
     the second (no separate pass). ``inverse`` > 0 must be exactly 1 / cell_size (a power of
@@ -103,6 +104,7 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     use_layer = layer > 0.0
     layer_count = np.zeros(m if use_layer else 0, np.int64)
     layer_sum = np.zeros(m if use_layer else 0)
+    layer_above = np.full(m if use_layer else 0, np.inf)
     for k in range(n):
         c = cells[k]
         if c < 0:
@@ -110,9 +112,12 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         v = positions[k, 2]
         d = v - mean[c]
         squares[c] += d * d
-        if use_layer and v <= lowest[c] + layer:
-            layer_count[c] += 1
-            layer_sum[c] += v
+        if use_layer:
+            if v <= lowest[c] + layer:
+                layer_count[c] += 1
+                layer_sum[c] += v
+            else:
+                layer_above[c] = min(layer_above[c], v)
     height = np.zeros(m)
     state = np.zeros(m, np.uint8)
     for c in range(m):
@@ -152,6 +157,7 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         outside,
         layer_count.reshape(nx, ny) if use_layer else layer_count.reshape(0, 0),
         layer_sum.reshape(nx, ny) if use_layer else layer_sum.reshape(0, 0),
+        layer_above.reshape(nx, ny) if use_layer else layer_above.reshape(0, 0),
     )
 
 

@@ -75,8 +75,8 @@ def ground_layer_from_sums(z, lowest, count, measured, layer_count, layer_sum, l
 
 
 @numba.njit(cache=True)
-def overhung_ground(positions, x_min, y_min, cell_size, z, lowest, highest, state, measured,
-                    connected, compact, layer, tolerance, clearance, spread, widen):
+def overhung_ground(positions, x_min, y_min, cell_size, z, lowest, highest, above, state,
+                    measured, connected, compact, layer, tolerance, clearance, spread, widen):
     """The cells of a connected terrain that are not ``compact`` but whose ground layer is
     their sample: ``connected`` and not ``compact``, the sample ``z`` within the layer
     (z <= lowest + layer), the lowest point at most ``tolerance`` above the lowest point of
@@ -86,13 +86,18 @@ def overhung_ground(positions, x_min, y_min, cell_size, z, lowest, highest, stat
     trunk or a bush returns continuously from its base).
 
     Returns (overhung, protected = compact | overhung) and sets ``spread`` to ``widen`` on
-    the overhung cells (in place). A cell whose ``highest`` point is within the layer, or at
-    least ``clearance`` above its top with nothing between, is decided here; only if some
-    candidate's highest point lies at least ``clearance`` above its top, one pass over the
-    rows (x, y, z) of ``positions`` (points outside the grid or with a non-finite coordinate
-    are skipped; the cell is computed only for points between the lowest pending top and the
-    highest pending top + clearance) looks for a point in the gap."""
+    the overhung cells (in place). A cell whose ``highest`` point is within the layer, or
+    less than ``clearance`` above its top, is decided here; the others by ``above``, the
+    lowest z above the top per cell gathered in the grid's pass over the points
+    (:func:`o3d_terrain._kernels.grid.quantize` with this ``layer``): h - t rounds
+    monotonically in h, so some point h > t has h - t < clearance exactly when the lowest
+    one does. With ``above`` empty (0, 0), one pass over the rows (x, y, z) of
+    ``positions`` (points outside the grid or with a non-finite coordinate are skipped; the
+    cell is computed only for points between the lowest pending top and the highest
+    pending top + clearance) looks for a point in the gap instead, if any candidate needs
+    it."""
     nx, ny = z.shape
+    gathered = above.shape[0] > 0
     m = nx * ny
     top = np.full(m, np.inf)  # finite on undecided candidates
     overhung = np.zeros((nx, ny), np.bool_)
@@ -123,6 +128,8 @@ def overhung_ground(positions, x_min, y_min, cell_size, z, lowest, highest, stat
             hi = highest[i, j]
             if hi <= t:  # every point within the layer
                 overhung[i, j] = True
+            elif hi - t >= clearance and gathered:  # the lowest point above the layer
+                overhung[i, j] = not above[i, j] - t < clearance
             elif hi - t >= clearance:  # points above the gap; one may lie inside it
                 overhung[i, j] = True
                 top[i * ny + j] = t
