@@ -655,6 +655,27 @@ def _cell_denominator(basis_x, i, sx, col_d, j, p):
     return acc
 
 
+@numba.njit(cache=True, inline="always")
+def _store_span_sums(r, t, held, r0, r1, r2, r3, t00, t01, t02, t03, t10, t11, t12, t20, t21,
+                     t30):
+    """Write the 14 running sums of the cubic span starting at row ``held`` (held in registers
+    by :func:`normal_band_cells`) back into ``r`` and ``t``."""
+    r[held] = r0
+    r[held + 1] = r1
+    r[held + 2] = r2
+    r[held + 3] = r3
+    t[held, 0] = t00
+    t[held, 1] = t01
+    t[held, 2] = t02
+    t[held, 3] = t03
+    t[held + 1, 0] = t10
+    t[held + 1, 1] = t11
+    t[held + 1, 2] = t12
+    t[held + 2, 0] = t20
+    t[held + 2, 1] = t21
+    t[held + 3, 0] = t30
+
+
 @numba.njit(cache=True, error_model="numpy")
 def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rational_weights,
                       cells, n0, n1, degree, bandwidth, denominators):
@@ -750,20 +771,8 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                     # fall in the same span: loaded here, stored back when the span changes
                     # (the same additions in the same order as in place)
                     if held >= 0:
-                        r[held] = r0
-                        r[held + 1] = r1
-                        r[held + 2] = r2
-                        r[held + 3] = r3
-                        t[held, 0] = t00
-                        t[held, 1] = t01
-                        t[held, 2] = t02
-                        t[held, 3] = t03
-                        t[held + 1, 0] = t10
-                        t[held + 1, 1] = t11
-                        t[held + 1, 2] = t12
-                        t[held + 2, 0] = t20
-                        t[held + 2, 1] = t21
-                        t[held + 3, 0] = t30
+                        _store_span_sums(r, t, held, r0, r1, r2, r3, t00, t01, t02, t03, t10,
+                                         t11, t12, t20, t21, t30)
                     held = base
                     r0 = r[base]
                     r1 = r[base + 1]
@@ -809,20 +818,8 @@ def normal_band_cells(spans_x, basis_x, spans_y, basis_y, z, sample_weights, rat
                 for d in range(p + 1 - b):
                     t[base + b, d] += wb * basis_y[j, b + d]
         if held >= 0:
-            r[held] = r0
-            r[held + 1] = r1
-            r[held + 2] = r2
-            r[held + 3] = r3
-            t[held, 0] = t00
-            t[held, 1] = t01
-            t[held, 2] = t02
-            t[held, 3] = t03
-            t[held + 1, 0] = t10
-            t[held + 1, 1] = t11
-            t[held + 1, 2] = t12
-            t[held + 2, 0] = t20
-            t[held + 2, 1] = t21
-            t[held + 3, 0] = t30
+            _store_span_sums(r, t, held, r0, r1, r2, r3, t00, t01, t02, t03, t10, t11, t12, t20,
+                             t21, t30)
             held = -1
         if b_hi < 0:
             continue
