@@ -19,7 +19,7 @@ from .frame import LABELS, Frame, as_frame
 from .grid import region_of
 from .ground_layer import default_layer
 from .noise import RangeNoise
-from .segment import TerrainLabel
+from .segment import FOOT_HEIGHT, TerrainLabel
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
@@ -192,7 +192,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
                     smoothing: float = 0.05, terrain_prior: bool = True,
                     range_noise: RangeNoise | float | None = None,
-                    misfit_threshold: bool = True
+                    misfit_threshold: bool = True, foot_height: float = FOOT_HEIGHT
                     ) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
@@ -201,8 +201,11 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
     just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`), widened with
     ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
-    (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). Other options as in
-    :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``).
+    (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). ``foot_height``: a terrain point
+    whose 0.15 m x/y column also holds an obstacle point less than this high above the
+    terrain is the foot of that object (a bush, a wall, a wheel) and not an inlier; 0 = off
+    (:func:`o3d_terrain.segment.mark_object_feet`). Other options as in :func:`fit_terrain`
+    (``range_noise`` given as a coefficient uses ``sensor_origin``).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
@@ -212,7 +215,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
-                       misfit_threshold=misfit_threshold)
+                       misfit_threshold=misfit_threshold, foot_height=foot_height)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,

@@ -8,6 +8,12 @@ from the sensor (stereo depth noise grows with range squared):
 - OBSTACLE: h > t(r)
 - BELOW_TERRAIN: h < -below_threshold (multipath, reflections, stereo mismatches)
 - UNKNOWN: non-finite coordinates or outside the surface's region
+
+Then the feet of objects (:func:`mark_object_feet`): TERRAIN points in a small x/y column
+(``foot_cell``, 0.15 m) whose points are for a good part OBSTACLE points less than
+``foot_height`` (0.5 m) above the terrain and above the local noise are the base of that object
+(a bush, a wall, a wheel, a post) and become OBSTACLE. Height alone cannot tell the lowest
+centimetres of an object from the ground beside it; the column can.
 """
 
 from __future__ import annotations
@@ -18,16 +24,25 @@ from enum import IntEnum
 import numpy as np
 
 from ._kernels import bspline as _bs
+from ._kernels import foot as _foot
 from .errors import InputError
 from .misfit import block_size, misfit_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds",
-           "auto_threshold", "label_heights", "widen_labels"]
+           "auto_threshold", "label_heights", "widen_labels", "mark_object_feet"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m
 AUTO_THRESHOLD_FACTOR = 3.5
 AUTO_THRESHOLD_RANGE = (0.1, 0.5)
+
+#: object feet (:func:`mark_object_feet`): column side (m), how high above the terrain an
+#: obstacle point marks its column (m), the share of a column's low points the marks need, and
+#: the side of the cells whose points below the surface give the local noise (m)
+FOOT_CELL = 0.15
+FOOT_HEIGHT = 0.5
+FOOT_FRACTION = 0.3
+FOOT_NOISE_CELL = 1.0
 
 
 class TerrainLabel(IntEnum):
@@ -89,7 +104,8 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
 
 def segment_points(surface: TerrainSurface, positions, *, threshold: float | None = 0.2,
                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
-                   sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True
+                   sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
+                   foot_height: float = FOOT_HEIGHT, foot_cell: float = FOOT_CELL
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
@@ -101,11 +117,17 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates).
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
         local misfit to the ground exceeds the noise (:mod:`o3d_terrain.misfit`).
+    foot_height: TERRAIN points in ``foot_cell`` columns that hold OBSTACLE points less than
+        this high above the terrain (above the local noise, at least 30 % of the column's low
+        points) become OBSTACLE (:func:`mark_object_feet`); 0 = off.
+    foot_cell: side of those columns (m).
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
                             _check("below_threshold", below_threshold, positive=True),
-                            _check("range_coefficient", range_coefficient, positive=False))
+                            _check("range_coefficient", range_coefficient, positive=False),
+                            _check("foot_height", foot_height, positive=False),
+                            _check("foot_cell", foot_cell, positive=True))
                 if m]
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
         problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
@@ -123,7 +145,53 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:
         widen_labels(labels, h, local, threshold)
+    if foot_height > 0:
+        mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
+                         noise_depth=below_threshold)
     return labels, h
+
+
+def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
+                     foot_height: float = FOOT_HEIGHT, cell: float = FOOT_CELL,
+                     fraction: float = FOOT_FRACTION, noise_factor: float = AUTO_THRESHOLD_FACTOR,
+                     noise_cell: float = FOOT_NOISE_CELL, noise_depth: float = 0.5) -> int:
+    """In place: TERRAIN labels in the x/y columns (side ``cell``, m) that are the foot of an
+    object become OBSTACLE; returns how many changed. A column is a foot when it holds OBSTACLE
+    points less than ``foot_height`` (m) above the terrain that
+
+    - stand out of the local noise: higher than ``noise_factor`` times the noise scale of the
+      points between ``-noise_depth`` and 0 m in their ``noise_cell`` cell (from their mean
+      depth; cells with fewer than 3 such points set no test), and
+    - make up at least ``fraction`` of the column's points at terrain level or in that band.
+
+    The base of a bush, a wall or a wheel lies within the terrain threshold, and the column
+    shows it belongs to the object; a noisy sensor's upper tail of ground points (a stereo
+    pair's at range) neither stands out of its cell's noise nor outnumbers the ground in its
+    column. Columns whose obstacle points all lie ``foot_height`` or more above the terrain (a
+    canopy, a car body above its ground clearance, a threshold at or above foot_height) change
+    nothing; ``foot_height`` 0 changes nothing. ``labels`` (N,) uint8 as :func:`label_heights`
+    writes them, ``heights`` (N,) above the terrain.
+    """
+    if labels.dtype != np.uint8 or labels.ndim != 1 or not labels.flags.writeable:
+        raise InputError("mark_object_feet: labels must be a writeable (N,) uint8 array")
+    p = _positions(positions)
+    if not (len(p) == len(labels) == len(heights)):
+        raise InputError(f"mark_object_feet: labels ({len(labels)}), heights ({len(heights)}) "
+                         f"and positions ({len(p)}) must have one entry per point")
+    problems = [m for m in (_check("foot_height", foot_height, positive=False),
+                            _check("cell", cell, positive=True),
+                            _check("fraction", fraction, positive=False),
+                            _check("noise_factor", noise_factor, positive=False),
+                            _check("noise_cell", noise_cell, positive=True),
+                            _check("noise_depth", noise_depth, positive=True)) if m]
+    if problems:
+        raise InputError("mark_object_feet: " + "; ".join(problems))
+    if foot_height == 0:
+        return 0
+    return int(_foot.mark_object_feet(
+        p, np.ascontiguousarray(heights, dtype=np.float64), labels, float(cell),
+        float(foot_height), float(fraction), float(noise_cell), float(noise_factor),
+        float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE)))
 
 
 def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,

@@ -219,3 +219,54 @@ def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=
         by = min(max(int((y[i] - y_min) / side), 0), nby - 1)
         out[i] = dilated[bx, by]
     return out
+
+
+
+def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, noise_cell,
+                     noise_factor, noise_depth, terrain=1, obstacle=2):
+    """Object feet with dicts of cells: candidates are OBSTACLE points below ``foot_height``;
+    keys floor((x - x0) / side), floor((y - y0) / side) with x0/y0 the candidates' lowest
+    coordinates. A candidate marks its column when its noise cell has fewer than 3 points with
+    heights in (-noise_depth, 0) or it is higher than noise_factor * sqrt(pi / 2) * their mean
+    depth; a marked column's TERRAIN points become OBSTACLE when marks >= fraction * (marks +
+    its TERRAIN points). Returns the new labels and how many changed."""
+    labels = labels.copy()
+
+    def finite_xy(k):
+        return math.isfinite(positions[k, 0]) and math.isfinite(positions[k, 1])
+
+    candidates = [k for k in range(len(labels))
+                  if labels[k] == obstacle and math.isfinite(heights[k])
+                  and heights[k] < foot_height and finite_xy(k)]
+    if not candidates:
+        return labels, 0
+    x0 = min(positions[k, 0] for k in candidates)
+    y0 = min(positions[k, 1] for k in candidates)
+
+    def key(k, side):
+        return (math.floor((positions[k, 0] - x0) / side),
+                math.floor((positions[k, 1] - y0) / side))
+
+    depths: dict = {}
+    for k in range(len(labels)):
+        if -noise_depth < heights[k] < 0 and finite_xy(k):
+            depths.setdefault(key(k, noise_cell), []).append(-heights[k])
+    marks: dict = {}
+    for k in candidates:
+        d = depths.get(key(k, noise_cell), [])
+        if len(d) >= 3 and heights[k] <= noise_factor * math.sqrt(math.pi / 2) * np.mean(d):
+            continue
+        marks[key(k, cell)] = marks.get(key(k, cell), 0) + 1
+    level: dict = {}
+    for k in range(len(labels)):
+        if labels[k] == terrain and finite_xy(k):
+            level[key(k, cell)] = level.get(key(k, cell), 0) + 1
+    changed = 0
+    for k in range(len(labels)):
+        if labels[k] != terrain or not finite_xy(k):
+            continue
+        m = marks.get(key(k, cell), 0)
+        if m > 0 and m >= fraction * (m + level[key(k, cell)]):
+            labels[k] = obstacle
+            changed += 1
+    return labels, changed

@@ -10,7 +10,7 @@ from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
-from ..segment import TerrainLabel, segment_points
+from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points
 from ..terrain import METHODS, TerrainFit, fit_grid_detailed
 from .base import Stage, stage
 
@@ -143,6 +143,10 @@ class Segmenter(Stage):
     OBSTACLE (2) above, BELOW_TERRAIN (3) below, UNKNOWN (0) for non-finite points and
     points outside the surface's region; t(r) = threshold + range_coefficient * r^2 with r the
     horizontal range from sensor_origin (stereo depth noise grows with range squared).
+    Then the feet of objects: TERRAIN points in a foot_cell x foot_cell column whose points are
+    for a good part (30 %) OBSTACLE points less than foot_height above the terrain, standing
+    out of the local noise, are the base of that object (a bush, a wall, a wheel) and become
+    OBSTACLE (o3d_terrain.segment.mark_object_feet).
     """
 
     reads = ("surface",)
@@ -164,6 +168,15 @@ class Segmenter(Stage):
              "noise (terrain the control spacing cannot follow), widen the threshold there, "
              "both sides, up to 1.5 m (o3d_terrain.misfit)",
     )
+    foot_height: float = option(
+        FOOT_HEIGHT, unit="m", rule=NON_NEGATIVE,
+        help="terrain points in a foot_cell column whose points are for 30 % or more obstacle "
+             "points less than this high above the terrain (and above the local noise) are "
+             "the foot of that object and become obstacles; 0 = off "
+             "(o3d_terrain.segment.mark_object_feet)",
+    )
+    foot_cell: float = option(FOOT_CELL, unit="m", rule=POSITIVE,
+                              help="side of the x/y columns of foot_height")
 
     def run(self, frame: Frame) -> Frame:
         labels, heights = self.label(frame.product("surface"), frame.positions)
@@ -183,4 +196,5 @@ class Segmenter(Stage):
                               below_threshold=self.below_threshold,
                               range_coefficient=self.range_coefficient,
                               sensor_origin=self.sensor_origin,
-                              misfit=self.misfit_threshold)
+                              misfit=self.misfit_threshold, foot_height=self.foot_height,
+                              foot_cell=self.foot_cell)

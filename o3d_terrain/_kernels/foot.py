@@ -1,0 +1,140 @@
+"""Object feet: terrain-level points that share a small vertical column with the low part of an
+obstacle (the base of a bush, a wall, a wheel, a post) are relabelled obstacle.
+
+A column (``cell`` x ``cell`` in x/y) is the foot of an object when it holds obstacle points
+below ``foot_height`` that stand out of the local noise (higher than ``noise_factor`` times the
+noise scale of the points below the surface in their ``noise_cell`` cell) and make up at least
+``fraction`` of the column's points at terrain level or in that band. The noise test and the
+fraction keep a noisy sensor's (a stereo pair's) upper tail of ground points from marking the
+columns of the ground they belong to.
+
+The columns and cells live in open-addressing hash sets of their integer keys, holding only the
+ones that candidate points occupy, so the cost does not depend on the cloud's extent (a
+kilometre-wide airborne tile at 0.15 m columns would need billions of grid cells).
+"""
+
+import math
+
+import numba
+import numpy as np
+
+_EMPTY = -1  # a free slot of a hash set (keys are >= 0)
+_MIX = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing: 2^64 / golden ratio, odd
+_LIMIT = 2147483647.0  # columns per axis a key can hold
+#: the noise scale of a cell from the mean depth of its points below the surface (half-normal)
+_HALF_NORMAL = math.sqrt(math.pi / 2.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _key(x, y, x0, y0, inv_cell):
+    """The key (ix * 2^32 + iy, >= 0) of the cell holding (x, y), -1 outside [0, _LIMIT)."""
+    fx = math.floor((x - x0) * inv_cell)
+    fy = math.floor((y - y0) * inv_cell)
+    if not (fx >= 0.0 and fy >= 0.0 and fx < _LIMIT and fy < _LIMIT):  # also False for NaN
+        return -1
+    return np.int64(fx) * np.int64(4294967296) + np.int64(fy)
+
+
+@numba.njit(cache=True)
+def _new_set(count):
+    """An empty hash set for ``count`` keys (load factor <= 1/2): (table, shift, mask)."""
+    bits = 4
+    while (1 << bits) < 2 * count:
+        bits += 1
+    return np.full(1 << bits, _EMPTY, np.int64), 64 - bits, (1 << bits) - 1
+
+
+@numba.njit(cache=True, inline="always")
+def _find(table, shift, mask, key, insert):
+    """The slot of ``key`` (inserted when ``insert``), or -1 when absent."""
+    s = np.int64((np.uint64(key) * _MIX) >> np.uint64(shift))
+    while table[s] != _EMPTY:
+        if table[s] == key:
+            return s
+        s = (s + 1) & mask
+    if not insert:
+        return -1
+    table[s] = key
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def _candidate(k, positions, heights, labels, obstacle, foot_height):
+    h = heights[k]
+    return (labels[k] == obstacle and h < foot_height and math.isfinite(h)
+            and math.isfinite(positions[k, 0]) and math.isfinite(positions[k, 1]))
+
+
+@numba.njit(cache=True)
+def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, noise_cell,
+                     noise_factor, noise_depth, terrain, obstacle):
+    """In place: the ``terrain`` labels of the foot columns (module docstring) become
+    ``obstacle``; returns how many changed. Noise cells take the points with heights in
+    (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
+    non-finite coordinates or heights never mark nor match a column."""
+    n = heights.shape[0]
+    # candidates: obstacle points below foot_height; the keys' origin is their lowest x, y
+    count = 0
+    x0 = math.inf
+    y0 = math.inf
+    for k in range(n):
+        if _candidate(k, positions, heights, labels, obstacle, foot_height):
+            count += 1
+            x0 = min(x0, positions[k, 0])
+            y0 = min(y0, positions[k, 1])
+    if count == 0:
+        return 0
+    inv_cell = 1.0 / cell
+    inv_noise = 1.0 / noise_cell
+    # the noise cells of the candidates, then the depths of the points below the surface there
+    cells, cell_shift, cell_mask = _new_set(count)
+    for k in range(n):
+        if _candidate(k, positions, heights, labels, obstacle, foot_height):
+            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_noise)
+            if key >= 0:
+                _find(cells, cell_shift, cell_mask, key, True)
+    depth_sum = np.zeros(cells.size)
+    depth_count = np.zeros(cells.size, np.int64)
+    for k in range(n):
+        h = heights[k]
+        if h < 0.0 and h > -noise_depth:
+            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_noise)
+            if key >= 0:
+                s = _find(cells, cell_shift, cell_mask, key, False)
+                if s >= 0:
+                    depth_sum[s] -= h
+                    depth_count[s] += 1
+    # the columns of the candidates that stand out of their cell's noise
+    columns, shift, mask = _new_set(count)
+    marks = np.zeros(columns.size, np.int64)
+    level = np.zeros(columns.size, np.int64)
+    for k in range(n):
+        if not _candidate(k, positions, heights, labels, obstacle, foot_height):
+            continue
+        x = positions[k, 0]
+        y = positions[k, 1]
+        s = _find(cells, cell_shift, cell_mask, _key(x, y, x0, y0, inv_noise), False)
+        if s >= 0 and depth_count[s] >= 3:
+            if heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
+                continue
+        key = _key(x, y, x0, y0, inv_cell)
+        if key >= 0:
+            marks[_find(columns, shift, mask, key, True)] += 1
+    # the terrain points in those columns, then the columns where the marks are enough of them
+    for k in range(n):
+        if labels[k] == terrain:
+            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+            if key >= 0:
+                s = _find(columns, shift, mask, key, False)
+                if s >= 0:
+                    level[s] += 1
+    changed = 0
+    for k in range(n):
+        if labels[k] == terrain:
+            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+            if key >= 0:
+                s = _find(columns, shift, mask, key, False)
+                if s >= 0 and marks[s] > 0 and marks[s] >= fraction * (marks[s] + level[s]):
+                    labels[k] = obstacle
+                    changed += 1
+    return changed
