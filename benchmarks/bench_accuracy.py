@@ -19,7 +19,8 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
-     [--no-terrain-prior] [--no-range-noise]
+     [--no-terrain-prior] [--no-range-noise] [--no-object-feet]
+(``--no-object-feet``: label by height alone, ``foot_height=0``.)
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
 #: keyword options of fit_grid_detailed for every fit (set from the command line)
 FIT_OPTIONS: dict = {}
 
+#: keyword options of segment_points for every labelling (set from the command line)
+LABEL_OPTIONS: dict = {}
+
 
 #: the synthetic stereo rig as its user knows it (calibration and disparity noise)
 STEREO_RIG = SYNTHETIC_STEREO_RIG
@@ -65,7 +69,8 @@ def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None)
 def segment_terrain(positions: np.ndarray, method: str = "robust"):
     """What ``o3d_terrain.segment_terrain`` does with its defaults (automatic threshold)."""
     surface = fit_terrain(positions, method)
-    labels, _ = segment_points(surface, positions, threshold=auto_threshold(surface, positions))
+    labels, _ = segment_points(surface, positions, threshold=auto_threshold(surface, positions),
+                               **LABEL_OPTIONS)
     return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN)
 
 SCENES = ("flat", "hills", "ramp", "ditch_berm", "valley", "mounds", "offroad")
@@ -136,7 +141,7 @@ def synthetic_row(scene_name, sensor: str, method: str) -> dict[str, float]:
     rmse_points = float(np.sqrt(np.mean(error**2)))
     rmse_cells = terrain_rmse(surface, cloud).rmse
     labels, h = segment_points(surface, positions, threshold=F1_THRESHOLD,
-                               below_threshold=BELOW_THRESHOLD)
+                               below_threshold=BELOW_THRESHOLD, **LABEL_OPTIONS)
     ground = labels == TerrainLabel.TERRAIN
     _, _, f1 = f1_score(ground[usable], terrain[usable])
     true_h = positions[:, 2] - true_z
@@ -231,7 +236,11 @@ def main() -> None:
                         help="fit with terrain_prior=False (plain robust weights)")
     parser.add_argument("--no-range-noise", action="store_true",
                         help="fit stereo clouds without their noise model (STEREO_RIG)")
+    parser.add_argument("--no-object-feet", action="store_true",
+                        help="label by height alone (foot_height=0)")
     args = parser.parse_args()
+    if args.no_object_feet:
+        LABEL_OPTIONS["foot_height"] = 0.0
     global USE_RANGE_NOISE
     USE_RANGE_NOISE = not args.no_range_noise
     if args.no_terrain_prior:
