@@ -29,8 +29,8 @@ from .errors import InputError
 from .misfit import block_size, misfit_thresholds
 from .spline import TerrainSurface
 
-__all__ = ["TerrainLabel", "heights_above_terrain", "segment_points", "thresholds",
-           "auto_threshold", "label_heights", "widen_labels", "mark_object_feet"]
+__all__ = ["TerrainLabel", "auto_threshold", "heights_above_terrain", "label_heights",
+           "mark_object_feet", "segment_points", "thresholds", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m
 AUTO_THRESHOLD_FACTOR = 3.5
@@ -162,7 +162,7 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     - stand out of the local noise: higher than ``noise_factor`` times the noise scale of the
       points between ``-noise_depth`` and 0 m in their ``noise_cell`` cell (from their mean
       depth; cells with fewer than 3 such points set no test), and
-    - make up at least ``fraction`` of the column's points at terrain level or in that band.
+    - make up at least ``fraction`` of them and the column's TERRAIN points together.
 
     The base of a bush, a wall or a wheel lies within the terrain threshold, and the column
     shows it belongs to the object; a noisy sensor's upper tail of ground points (a stereo

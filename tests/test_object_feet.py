@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import naive
 import numpy as np
 import pytest
 
@@ -9,8 +10,6 @@ from o3d_terrain.api import segment_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.segment import TerrainLabel, mark_object_feet, segment_points
 from o3d_terrain.spline import make_lsq_surface
-
-import naive
 
 T, O, B, U = (int(v) for v in (TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,
                                TerrainLabel.BELOW_TERRAIN, TerrainLabel.UNKNOWN))
@@ -89,9 +88,9 @@ def test_bush_base_becomes_obstacle_and_ground_beside_it_stays_terrain():
 
 
 def test_feet_need_obstacle_points_below_foot_height():
-    positions, kind = bush_scene()
+    positions, _ = bush_scene()
     surface = flat_surface()
-    labels, h = segment_points(surface, positions, threshold=0.2, foot_height=0.15)
+    labels, _ = segment_points(surface, positions, threshold=0.2, foot_height=0.15)
     plain, _ = segment_points(surface, positions, threshold=0.2, foot_height=0)
     np.testing.assert_array_equal(labels, plain)  # no obstacle point lies in (0.2, 0.15)
 

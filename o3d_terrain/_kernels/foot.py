@@ -4,7 +4,7 @@ obstacle (the base of a bush, a wall, a wheel, a post) are relabelled obstacle.
 A column (``cell`` x ``cell`` in x/y) is the foot of an object when it holds obstacle points
 below ``foot_height`` that stand out of the local noise (higher than ``noise_factor`` times the
 noise scale of the points below the surface in their ``noise_cell`` cell) and make up at least
-``fraction`` of the column's points at terrain level or in that band. The noise test and the
+``fraction`` of them and the column's terrain points together. The noise test and the
 fraction keep a noisy sensor's (a stereo pair's) upper tail of ground points from marking the
 columns of the ground they belong to.
 
@@ -114,13 +114,15 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, no
         x = positions[k, 0]
         y = positions[k, 1]
         s = _find(cells, cell_shift, cell_mask, _key(x, y, x0, y0, inv_noise), False)
-        if s >= 0 and depth_count[s] >= 3:
-            if heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
-                continue
+        if s >= 0 and depth_count[s] >= 3 and \
+                heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
+            continue
         key = _key(x, y, x0, y0, inv_cell)
         if key >= 0:
             marks[_find(columns, shift, mask, key, True)] += 1
-    # the terrain points in those columns, then the columns where the marks are enough of them
+    # the terrain points in marked columns (their slots kept), then those of the columns
+    # where the marks are enough of them
+    slots = np.full(n, -1, np.int64)
     for k in range(n):
         if labels[k] == terrain:
             key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
@@ -128,13 +130,11 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, no
                 s = _find(columns, shift, mask, key, False)
                 if s >= 0:
                     level[s] += 1
+                    slots[k] = s
     changed = 0
     for k in range(n):
-        if labels[k] == terrain:
-            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
-            if key >= 0:
-                s = _find(columns, shift, mask, key, False)
-                if s >= 0 and marks[s] > 0 and marks[s] >= fraction * (marks[s] + level[s]):
-                    labels[k] = obstacle
-                    changed += 1
+        s = slots[k]
+        if s >= 0 and marks[s] >= fraction * (marks[s] + level[s]):
+            labels[k] = obstacle
+            changed += 1
     return changed
