@@ -31,6 +31,7 @@ from .grid import FILLED, MEASURED, HeightGrid
 from .ground_layer import default_layer, ground_layer_samples, overhung_ground_cells
 from .noise import GridNoise, RangeNoise
 from .spline import GridBasis, TerrainSurface
+from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
            "default_control_points", "terrain_prior_mask", "METHODS"]
@@ -208,8 +209,9 @@ def fit_grid_detailed(
         grid_noise = GridNoise(grid, positions, range_noise, samples)
     if method == "paper":
         z = np.where(valid, samples - z0, 0.0)
-        fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
-                         max_iterations)
+        with one_blas_thread():  # small solves: BLAS threads cost more than they give
+            fit = _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational,
+                             max_iterations)
     else:
         prior = None
         compact = np.zeros((0, 0), bool)
@@ -238,9 +240,10 @@ def fit_grid_detailed(
             grid.state, np.ascontiguousarray(samples, dtype=np.float64),
             grid.mean if use_mean else np.zeros((0, 0)), compact if use_mean else
             np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
-        fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational,
-                          smoothing, noise_floor, max_iterations, prior, grid_noise, z0,
-                          grid.state)
+        with one_blas_thread():  # small banded solves: BLAS threads cost more than they give
+            fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree,
+                              rational, smoothing, noise_floor, max_iterations, prior,
+                              grid_noise, z0, grid.state)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
     if method == "paper":
         samples = np.where(valid, samples + z0, np.nan)
