@@ -25,7 +25,7 @@ _LIMIT = 2147483647.0  # columns per axis a key can hold
 _HALF_NORMAL = math.sqrt(math.pi / 2.0)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _key(x, y, x0, y0, inv_cell):
     """The key (ix * 2^32 + iy, >= 0) of the cell holding (x, y), -1 outside [0, _LIMIT)."""
     fx = math.floor((x - x0) * inv_cell)
@@ -44,7 +44,7 @@ def _new_set(count):
     return np.full(1 << bits, _EMPTY, np.int64), 64 - bits, (1 << bits) - 1
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _find(table, shift, mask, key, insert):
     """The slot of ``key`` (inserted when ``insert``), or -1 when absent."""
     s = np.int64((np.uint64(key) * _MIX) >> np.uint64(shift))
@@ -58,7 +58,7 @@ def _find(table, shift, mask, key, insert):
     return s
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _candidate(k, positions, heights, labels, obstacle, foot_height):
     h = heights[k]
     return (labels[k] == obstacle and h < foot_height and math.isfinite(h)
