@@ -202,9 +202,10 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`), widened with
     ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
     (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). ``foot_height``: terrain points in a
-    0.15 m x/y column whose points are for 30 % or more obstacle points less than this high
-    above the terrain (and above the local noise) are the foot of that object (a bush, a
-    wall, a wheel) and not inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). Other options as in :func:`fit_terrain`
+    0.15 m x/y column that also holds obstacle points less than this high above the terrain
+    (above the local noise, 30 % or more of the column, with an object at least 0.35 m high
+    in it or beside it) are the foot of that object (a bush, a wall, a wheel) and not
+    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). Other options as in :func:`fit_terrain`
     (``range_noise`` given as a coefficient uses ``sensor_origin``).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.

@@ -11,8 +11,8 @@ from the sensor (stereo depth noise grows with range squared):
 
 Then the feet of objects (:func:`mark_object_feet`): TERRAIN points in a small x/y column
 (``foot_cell``, 0.15 m) whose points are for a good part OBSTACLE points less than
-``foot_height`` (0.5 m) above the terrain and above the local noise are the base of that object
-(a bush, a wall, a wheel, a post) and become OBSTACLE. Height alone cannot tell the lowest
+``foot_height`` (0.5 m) above the terrain and above the local noise, next to an object at least
+0.35 m high, are the base of that object (a bush, a wall, a wheel, a post) and become OBSTACLE. Height alone cannot tell the lowest
 centimetres of an object from the ground beside it; the column can.
 """
 
@@ -37,12 +37,18 @@ AUTO_THRESHOLD_FACTOR = 3.5
 AUTO_THRESHOLD_RANGE = (0.1, 0.5)
 
 #: object feet (:func:`mark_object_feet`): column side (m), how high above the terrain an
-#: obstacle point marks its column (m), the share of a column's low points the marks need, and
-#: the side of the cells whose points below the surface give the local noise (m)
+#: obstacle point marks its column (m), the share of a column's low points the marks need, the
+#: side of the cells whose points below the surface give the local noise (m)
 FOOT_CELL = 0.15
 FOOT_HEIGHT = 0.5
 FOOT_FRACTION = 0.3
 FOOT_NOISE_CELL = 1.0
+#: the least height (m) a foot column's highest mark must reach above its lowest point: what
+#: terrain of about 34 degrees rises across a 0.15 m column
+FOOT_RISE = 0.1
+#: the height (m) above the terrain of an obstacle point that shows an object stands at a
+#: column (in it or one of its 8 neighbours)
+FOOT_OBJECT = 0.35
 
 
 class TerrainLabel(IntEnum):
@@ -119,7 +125,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         local misfit to the ground exceeds the noise (:mod:`o3d_terrain.misfit`).
     foot_height: TERRAIN points in ``foot_cell`` columns that hold OBSTACLE points less than
         this high above the terrain (above the local noise, at least 30 % of the column's low
-        points) become OBSTACLE (:func:`mark_object_feet`); 0 = off.
+        points, an object at least 0.35 m high in the column or beside it) become OBSTACLE
+        (:func:`mark_object_feet`); 0 = off.
     foot_cell: side of those columns (m).
     """
     problems = [m for m in (None if threshold is None
@@ -153,7 +160,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
 
 def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                      foot_height: float = FOOT_HEIGHT, cell: float = FOOT_CELL,
-                     fraction: float = FOOT_FRACTION, noise_factor: float = AUTO_THRESHOLD_FACTOR,
+                     fraction: float = FOOT_FRACTION, rise: float = FOOT_RISE,
+                     object_height: float = FOOT_OBJECT,
+                     noise_factor: float = AUTO_THRESHOLD_FACTOR,
                      noise_cell: float = FOOT_NOISE_CELL, noise_depth: float = 0.5) -> int:
     """In place: TERRAIN labels in the x/y columns (side ``cell``, m) that are the foot of an
     object become OBSTACLE; returns how many changed. A column is a foot when it holds OBSTACLE
@@ -162,12 +171,17 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     - stand out of the local noise: higher than ``noise_factor`` times the noise scale of the
       points between ``-noise_depth`` and 0 m in their ``noise_cell`` cell (from their mean
       depth; cells with fewer than 3 such points set no test), and
-    - make up at least ``fraction`` of them and the column's TERRAIN points together.
+    - make up at least ``fraction`` of them and the column's TERRAIN points together, and
+    - reach more than ``rise`` (m) above the column's lowest point (marks and TERRAIN points):
+      terrain does not rise that much across a column, so where the surface undercuts steep
+      ground the ground above the threshold does not take the ground below it along, and
+    - the column or one of its 8 neighbours holds an OBSTACLE point at least ``object_height``
+      (m) above the terrain: an object stands there.
 
     The base of a bush, a wall or a wheel lies within the terrain threshold, and the column
     shows it belongs to the object; a noisy sensor's upper tail of ground points (a stereo
-    pair's at range) neither stands out of its cell's noise nor outnumbers the ground in its
-    column. Columns whose obstacle points all lie ``foot_height`` or more above the terrain (a
+    pair's at range) mostly neither stands out of its cell's noise, nor outnumbers the ground
+    in its column, nor has an object beside it. Columns whose obstacle points all lie ``foot_height`` or more above the terrain (a
     canopy, a car body above its ground clearance, a threshold at or above foot_height) change
     nothing; ``foot_height`` 0 changes nothing. ``labels`` (N,) uint8 as :func:`label_heights`
     writes them, ``heights`` (N,) above the terrain.
@@ -181,6 +195,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     problems = [m for m in (_check("foot_height", foot_height, positive=False),
                             _check("cell", cell, positive=True),
                             _check("fraction", fraction, positive=False),
+                            _check("rise", rise, positive=False),
+                            _check("object_height", object_height, positive=False),
                             _check("noise_factor", noise_factor, positive=False),
                             _check("noise_cell", noise_cell, positive=True),
                             _check("noise_depth", noise_depth, positive=True)) if m]
@@ -190,7 +206,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
         return 0
     return int(_foot.mark_object_feet(
         p, np.ascontiguousarray(heights, dtype=np.float64), labels, float(cell),
-        float(foot_height), float(fraction), float(noise_cell), float(noise_factor),
+        float(foot_height), float(fraction), float(rise), float(object_height),
+        float(noise_cell), float(noise_factor),
         float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE)))
 
 

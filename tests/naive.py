@@ -222,14 +222,17 @@ def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=
 
 
 
-def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, noise_cell,
-                     noise_factor, noise_depth, terrain=1, obstacle=2):
+def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, rise,
+                     object_height, noise_cell, noise_factor, noise_depth, terrain=1,
+                     obstacle=2):
     """Object feet with dicts of cells: candidates are OBSTACLE points below ``foot_height``;
     keys floor((x - x0) / side), floor((y - y0) / side) with x0/y0 the candidates' lowest
-    coordinates. A candidate marks its column when its noise cell has fewer than 3 points with
+    coordinates less one column. A candidate marks its column when its noise cell has fewer than 3 points with
     heights in (-noise_depth, 0) or it is higher than noise_factor * sqrt(pi / 2) * their mean
     depth; a marked column's TERRAIN points become OBSTACLE when marks >= fraction * (marks +
-    its TERRAIN points). Returns the new labels and how many changed."""
+    its TERRAIN points), its highest mark is more than ``rise`` above the lowest of its marks
+    and TERRAIN points, and it or one of its 8 neighbours holds an OBSTACLE point at least
+    ``object_height`` up. Returns the new labels and how many changed."""
     labels = labels.copy()
 
     def finite_xy(k):
@@ -240,8 +243,8 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, no
                   and heights[k] < foot_height and finite_xy(k)]
     if not candidates:
         return labels, 0
-    x0 = min(positions[k, 0] for k in candidates)
-    y0 = min(positions[k, 1] for k in candidates)
+    x0 = min(positions[k, 0] for k in candidates) - cell
+    y0 = min(positions[k, 1] for k in candidates) - cell
 
     def key(k, side):
         return (math.floor((positions[k, 0] - x0) / side),
@@ -252,21 +255,33 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, no
         if -noise_depth < heights[k] < 0 and finite_xy(k):
             depths.setdefault(key(k, noise_cell), []).append(-heights[k])
     marks: dict = {}
+    column_heights: dict = {}  # the heights of each marked column's marks and TERRAIN points
     for k in candidates:
         d = depths.get(key(k, noise_cell), [])
         if len(d) >= 3 and heights[k] <= noise_factor * math.sqrt(math.pi / 2) * np.mean(d):
             continue
         marks[key(k, cell)] = marks.get(key(k, cell), 0) + 1
+        column_heights.setdefault(key(k, cell), {"marks": [], "all": []})
+        column_heights[key(k, cell)]["marks"].append(heights[k])
+        column_heights[key(k, cell)]["all"].append(heights[k])
+    objects = {key(k, cell) for k in range(len(labels))
+               if labels[k] == obstacle and heights[k] >= object_height and finite_xy(k)}
     level: dict = {}
     for k in range(len(labels)):
         if labels[k] == terrain and finite_xy(k):
             level[key(k, cell)] = level.get(key(k, cell), 0) + 1
+            if key(k, cell) in column_heights and math.isfinite(heights[k]):
+                column_heights[key(k, cell)]["all"].append(heights[k])
     changed = 0
     for k in range(len(labels)):
         if labels[k] != terrain or not finite_xy(k):
             continue
         m = marks.get(key(k, cell), 0)
-        if m > 0 and m >= fraction * (m + level[key(k, cell)]):
+        ix, iy = key(k, cell)
+        near = any((ix + dx, iy + dy) in objects for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+        if m > 0 and near and m >= fraction * (m + level[key(k, cell)]) and \
+                max(column_heights[key(k, cell)]["marks"]) \
+                - min(column_heights[key(k, cell)]["all"]) > rise:
             labels[k] = obstacle
             changed += 1
     return labels, changed

@@ -46,17 +46,17 @@ def test_kernel_matches_the_plain_reference():
                          -rng.uniform(0.5, 1.0, n)], np.nan)
     positions[::97, 0] = np.nan
     heights[::89] = np.nan
-    cases = ((0.15, 0.5, 0.3, 1.0, 3.5), (0.3, 0.8, 0.0, 0.7, 0.5), (0.07, 0.4, 0.5, 2.0, 0.0),
-             (0.5, 1.2, 0.25, 1.0, 1.0))
+    cases = ((0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5), (0.3, 0.8, 0.0, 0.0, 0.0, 0.7, 0.5),
+             (0.07, 0.4, 0.5, 0.25, 1.1, 2.0, 0.0), (0.5, 1.2, 0.25, 0.6, 0.2, 1.0, 1.0))
     counts = []
-    for cell, foot_height, fraction, noise_cell, noise_factor in cases:
+    for cell, foot_height, fraction, rise, object_height, noise_cell, noise_factor in cases:
         expected, count = naive.mark_object_feet(labels, heights, positions, foot_height,
-                                                 cell, fraction, noise_cell, noise_factor, 0.5,
-                                                 T, O)
+                                                 cell, fraction, rise, object_height,
+                                                 noise_cell, noise_factor, 0.5, T, O)
         got = labels.copy()
         changed = mark_object_feet(got, heights, positions, foot_height=foot_height, cell=cell,
-                                   fraction=fraction, noise_cell=noise_cell,
-                                   noise_factor=noise_factor)
+                                   fraction=fraction, rise=rise, object_height=object_height,
+                                   noise_cell=noise_cell, noise_factor=noise_factor)
         np.testing.assert_array_equal(got, expected)
         assert changed == count
         counts.append(count)
@@ -111,3 +111,24 @@ def test_segment_terrain_option_and_errors():
         mark_object_feet(labels, np.zeros(3), np.zeros((3, 3)), fraction=-0.1)
     with pytest.raises(InputError, match="uint8"):
         mark_object_feet(labels.astype(np.int64), np.zeros(3), np.zeros((3, 3)))
+
+
+def test_a_column_that_rises_no_more_than_terrain_is_not_a_foot():
+    """Where the surface undercuts steep ground, ground points just above the threshold share
+    columns with ground points just below it: a column must reach more than 0.1 m above its
+    lowest point to be the foot of an object."""
+    surface = flat_surface()
+    # columns are counted from the lowest x and y of the obstacle points below foot_height
+    # (5.08, 0.06): each group lies inside one 0.15 m column
+    column = [[5.10, 0.08, 0.03], [5.12, 0.10, 0.06], [5.08, 0.06, 0.11]]  # a 0.08 m rise
+    foot = [[8.10, 0.08, 0.03], [8.12, 0.10, 0.06], [8.14, 0.12, 0.25]]  # a post's low part
+    post = [[8.13, 0.11, 1.0]]  # the post above it
+    positions = np.array(column + foot + post, float)
+    labels, _ = segment_points(surface, positions, threshold=0.1)
+    assert labels.tolist() == [T, T, O, O, O, O, O]
+    labels, _ = segment_points(surface, positions, threshold=0.1, foot_height=0)
+    assert labels.tolist() == [T, T, O, T, T, O, O]
+    # without the post, nothing shows that an object stands there: a 0.25 m bump of rough
+    # ground or the upper tail of a noisy sensor's ground takes no ground along
+    labels, _ = segment_points(surface, positions[:-1], threshold=0.1)
+    assert labels.tolist() == [T, T, O, T, T, O]

@@ -38,15 +38,15 @@ def plane_surface():
 
 def test_labels_follow_the_height_rule():
     s = plane_surface()
-    pts = np.array([[5, 0, 0.5 + 0.1], [5, 0, 0.5 + 0.3], [5, 0, 0.5 - 0.6], [5, 0, 0.5 - 0.4],
+    pts = np.array([[5, 0, 0.5 + 0.1], [5, 0, 0.5 + 0.4], [5, 0, 0.5 - 0.6], [5, 0, 0.5 - 0.4],
                     [40, 0, 0], [np.nan, 0, 0]])
     # the points stand in one column: the height rule alone (object feet off) ...
     labels, h = segment_points(s, pts, threshold=0.2, below_threshold=0.5, foot_height=0)
     assert labels.tolist() == [1, 2, 3, 1, 0, 0]
-    # ... and with the feet of objects, the obstacle point 0.3 m up takes the column's terrain
+    # ... and with the feet of objects, the obstacle point 0.4 m up takes the column's terrain
     labels, _ = segment_points(s, pts, threshold=0.2, below_threshold=0.5)
     assert labels.tolist() == [2, 2, 3, 2, 0, 0]
-    np.testing.assert_allclose(h[:4], [0.1, 0.3, -0.6, -0.4], atol=1e-9)
+    np.testing.assert_allclose(h[:4], [0.1, 0.4, -0.6, -0.4], atol=1e-9)
 
 
 def test_threshold_grows_with_range_squared():

@@ -3,8 +3,12 @@ obstacle (the base of a bush, a wall, a wheel, a post) are relabelled obstacle.
 
 A column (``cell`` x ``cell`` in x/y) is the foot of an object when it holds obstacle points
 below ``foot_height`` that stand out of the local noise (higher than ``noise_factor`` times the
-noise scale of the points below the surface in their ``noise_cell`` cell) and make up at least
-``fraction`` of them and the column's terrain points together. The noise test and the
+noise scale of the points below the surface in their ``noise_cell`` cell), make up at least
+``fraction`` of them and the column's terrain points together, and reach more than ``rise``
+above the column's lowest point (terrain does not rise that much across a column: where the
+surface undercuts steep ground, the ground above the threshold does not take the ground below
+it along), and the column or one of its 8 neighbours holds an obstacle point at least
+``object_height`` up (an object stands there, not the upper tail of a noisy sensor's ground). The noise test and the
 fraction keep a noisy sensor's (a stereo pair's) upper tail of ground points from marking the
 columns of the ground they belong to.
 
@@ -66,8 +70,8 @@ def _candidate(k, positions, heights, labels, obstacle, foot_height):
 
 
 @numba.njit(cache=True)
-def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, noise_cell,
-                     noise_factor, noise_depth, terrain, obstacle):
+def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, rise,
+                     object_height, noise_cell, noise_factor, noise_depth, terrain, obstacle):
     """In place: the ``terrain`` labels of the foot columns (module docstring) become
     ``obstacle``; returns how many changed. Noise cells take the points with heights in
     (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
@@ -84,6 +88,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, no
             y0 = min(y0, positions[k, 1])
     if count == 0:
         return 0
+    x0 -= cell  # one column of margin: the candidates' columns all have their 8 neighbours
+    y0 -= cell
     inv_cell = 1.0 / cell
     inv_noise = 1.0 / noise_cell
     # the noise cells of the candidates, then the depths of the points below the surface there
@@ -108,6 +114,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, no
     columns, shift, mask = _new_set(count)
     marks = np.zeros(columns.size, np.int64)
     level = np.zeros(columns.size, np.int64)
+    top = np.full(columns.size, -np.inf)  # the highest mark of a column
+    bottom = np.full(columns.size, np.inf)  # the lowest of its marks and terrain points
     for k in range(n):
         if not _candidate(k, positions, heights, labels, obstacle, foot_height):
             continue
@@ -119,7 +127,34 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, no
             continue
         key = _key(x, y, x0, y0, inv_cell)
         if key >= 0:
-            marks[_find(columns, shift, mask, key, True)] += 1
+            s = _find(columns, shift, mask, key, True)
+            marks[s] += 1
+            top[s] = max(top[s], heights[k])
+            bottom[s] = min(bottom[s], heights[k])
+    # the object: columns with an obstacle point at least object_height up, and the marked
+    # columns that have one among themselves and their 8 neighbours
+    tall = 0
+    for k in range(n):
+        if labels[k] == obstacle and heights[k] >= object_height:
+            tall += 1
+    objects, object_shift, object_mask = _new_set(tall)
+    for k in range(n):
+        if labels[k] == obstacle and heights[k] >= object_height:
+            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+            if key >= 0:
+                _find(objects, object_shift, object_mask, key, True)
+    near = np.zeros(columns.size, np.bool_)
+    for s in range(columns.size):
+        key = columns[s]
+        if key == _EMPTY or tall == 0:
+            continue
+        ix = key >> 32
+        iy = key & 4294967295
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                if _find(objects, object_shift, object_mask, (ix + dx) * 4294967296 + iy + dy,
+                         False) >= 0:
+                    near[s] = True
     # the terrain points in marked columns (their slots kept), then those of the columns
     # where the marks are enough of them
     slots = np.full(n, -1, np.int64)
@@ -131,10 +166,13 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, no
                 if s >= 0:
                     level[s] += 1
                     slots[k] = s
+                    if math.isfinite(heights[k]):
+                        bottom[s] = min(bottom[s], heights[k])
     changed = 0
     for k in range(n):
         s = slots[k]
-        if s >= 0 and marks[s] >= fraction * (marks[s] + level[s]):
+        if s >= 0 and near[s] and marks[s] >= fraction * (marks[s] + level[s]) \
+                and top[s] - bottom[s] > rise:
             labels[k] = obstacle
             changed += 1
     return changed

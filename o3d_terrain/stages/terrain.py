@@ -145,8 +145,8 @@ class Segmenter(Stage):
     horizontal range from sensor_origin (stereo depth noise grows with range squared).
     Then the feet of objects: TERRAIN points in a foot_cell x foot_cell column whose points are
     for a good part (30 %) OBSTACLE points less than foot_height above the terrain, standing
-    out of the local noise, are the base of that object (a bush, a wall, a wheel) and become
-    OBSTACLE (o3d_terrain.segment.mark_object_feet).
+    out of the local noise, next to an object at least 0.35 m high, are the base of that
+    object (a bush, a wall, a wheel) and become OBSTACLE (o3d_terrain.segment.mark_object_feet).
     """
 
     reads = ("surface",)
@@ -171,9 +171,9 @@ class Segmenter(Stage):
     foot_height: float = option(
         FOOT_HEIGHT, unit="m", rule=NON_NEGATIVE,
         help="terrain points in a foot_cell column whose points are for 30 % or more obstacle "
-             "points less than this high above the terrain (and above the local noise) are "
-             "the foot of that object and become obstacles; 0 = off "
-             "(o3d_terrain.segment.mark_object_feet)",
+             "points less than this high above the terrain (above the local noise, next to an "
+             "object at least 0.35 m high) are the foot of that object and become obstacles; "
+             "0 = off (o3d_terrain.segment.mark_object_feet)",
     )
     foot_cell: float = option(FOOT_CELL, unit="m", rule=POSITIVE,
                               help="side of the x/y columns of foot_height")
