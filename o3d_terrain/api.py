@@ -205,8 +205,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     0.15 m x/y column that also holds obstacle points less than this high above the terrain
     (above the local noise, 30 % or more of the column, with an object at least 0.35 m high
     in it or beside it) are the foot of that object (a bush, a wall, a wheel) and not
-    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). Other options as in :func:`fit_terrain`
-    (``range_noise`` given as a coefficient uses ``sensor_origin``).
+    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). Other options as in
+    :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """

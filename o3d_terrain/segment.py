@@ -12,8 +12,9 @@ from the sensor (stereo depth noise grows with range squared):
 Then the feet of objects (:func:`mark_object_feet`): TERRAIN points in a small x/y column
 (``foot_cell``, 0.15 m) whose points are for a good part OBSTACLE points less than
 ``foot_height`` (0.5 m) above the terrain and above the local noise, next to an object at least
-0.35 m high, are the base of that object (a bush, a wall, a wheel, a post) and become OBSTACLE. Height alone cannot tell the lowest
-centimetres of an object from the ground beside it; the column can.
+0.35 m high, are the base of that object (a bush, a wall, a wheel, a post) and become OBSTACLE.
+Height alone cannot tell the lowest centimetres of an object from the ground beside it; the
+column can.
 """
 
 from __future__ import annotations
@@ -181,10 +182,11 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     The base of a bush, a wall or a wheel lies within the terrain threshold, and the column
     shows it belongs to the object; a noisy sensor's upper tail of ground points (a stereo
     pair's at range) mostly neither stands out of its cell's noise, nor outnumbers the ground
-    in its column, nor has an object beside it. Columns whose obstacle points all lie ``foot_height`` or more above the terrain (a
-    canopy, a car body above its ground clearance, a threshold at or above foot_height) change
-    nothing; ``foot_height`` 0 changes nothing. ``labels`` (N,) uint8 as :func:`label_heights`
-    writes them, ``heights`` (N,) above the terrain.
+    in its column, nor has an object beside it. Columns whose obstacle points all lie
+    ``foot_height`` or more above the terrain (a canopy, a car body above its ground clearance,
+    a threshold at or above foot_height) change nothing; ``foot_height`` 0 changes nothing.
+    ``labels`` (N,) uint8 as :func:`label_heights` writes them, ``heights`` (N,) above the
+    terrain.
     """
     if labels.dtype != np.uint8 or labels.ndim != 1 or not labels.flags.writeable:
         raise InputError("mark_object_feet: labels must be a writeable (N,) uint8 array")

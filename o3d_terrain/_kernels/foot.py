@@ -8,9 +8,9 @@ noise scale of the points below the surface in their ``noise_cell`` cell), make 
 above the column's lowest point (terrain does not rise that much across a column: where the
 surface undercuts steep ground, the ground above the threshold does not take the ground below
 it along), and the column or one of its 8 neighbours holds an obstacle point at least
-``object_height`` up (an object stands there, not the upper tail of a noisy sensor's ground). The noise test and the
-fraction keep a noisy sensor's (a stereo pair's) upper tail of ground points from marking the
-columns of the ground they belong to.
+``object_height`` up (an object stands there, not the upper tail of a noisy sensor's ground).
+The noise test, the fraction and the object keep a noisy sensor's (a stereo pair's) upper tail
+of ground points from marking the columns of the ground they belong to.
 
 The columns and cells live in open-addressing hash sets of their integer keys, holding only the
 ones that candidate points occupy, so the cost does not depend on the cloud's extent (a
@@ -78,10 +78,14 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     non-finite coordinates or heights never mark nor match a column."""
     n = heights.shape[0]
     # candidates: obstacle points below foot_height; the keys' origin is their lowest x, y
+    # (and how many obstacle points are at least object_height up, for the object set)
     count = 0
+    tall = 0
     x0 = math.inf
     y0 = math.inf
     for k in range(n):
+        if labels[k] == obstacle and heights[k] >= object_height:
+            tall += 1
         if _candidate(k, positions, heights, labels, obstacle, foot_height):
             count += 1
             x0 = min(x0, positions[k, 0])
@@ -133,10 +137,6 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             bottom[s] = min(bottom[s], heights[k])
     # the object: columns with an obstacle point at least object_height up, and the marked
     # columns that have one among themselves and their 8 neighbours
-    tall = 0
-    for k in range(n):
-        if labels[k] == obstacle and heights[k] >= object_height:
-            tall += 1
     objects, object_shift, object_mask = _new_set(tall)
     for k in range(n):
         if labels[k] == obstacle and heights[k] >= object_height:
