@@ -24,6 +24,7 @@ from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
 from .stages.terrain import RationalBSplineTerrain, Segmenter
+from .terrain import MAX_SLOPE_DEG
 
 __all__ = ["fit_terrain", "segment_terrain", "cloud_positions"]
 
@@ -86,7 +87,8 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
-                    terrain_prior, range_noise=None, sensor_origin=(0.0, 0.0, 0.0)):
+                    terrain_prior, range_noise=None, sensor_origin=(0.0, 0.0, 0.0),
+                    max_slope_deg=MAX_SLOPE_DEG):
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
     noise = {}
@@ -98,7 +100,7 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
     terrain = _build(RationalBSplineTerrain,
                      control_points=None if control_points is None else tuple(control_points),
                      degree=degree, method=method, smoothing=smoothing,
-                     terrain_prior=terrain_prior, **noise)
+                     terrain_prior=terrain_prior, max_slope_deg=max_slope_deg, **noise)
     return quantize, terrain
 
 
@@ -124,10 +126,11 @@ def _checked_region(positions: np.ndarray, region):
 
 def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
                    smoothing, terrain_prior=True, range_noise=None,
-                   sensor_origin=(0.0, 0.0, 0.0)) -> Frame:
+                   sensor_origin=(0.0, 0.0, 0.0), max_slope_deg=MAX_SLOPE_DEG) -> Frame:
     """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                        smoothing, terrain_prior, range_noise, sensor_origin)
+                                        smoothing, terrain_prior, range_noise, sensor_origin,
+                                        max_slope_deg)
     frame = as_frame(cloud)
     _checked_region(frame.positions, quantize.region)
     return terrain(quantize(frame))
@@ -158,16 +161,21 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 control_points: Sequence[int] | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
-                sensor_origin: Sequence[float] = (0.0, 0.0, 0.0)) -> TerrainSurface:
+                sensor_origin: Sequence[float] = (0.0, 0.0, 0.0),
+                max_slope_deg: float = MAX_SLOPE_DEG) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
     cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
     (at least 1 m), at most 32 per axis. degree: B-spline degree. method: "robust" or "paper".
     smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
-    terrain_prior: do not reject compact cells connected to the ground under a 45° slope
-    limit as obstacles (steep berms and ditch walls; docs/algorithm.md); False = plain robust
-    weights.
+    terrain_prior: do not reject compact cells connected to the ground under the
+    ``max_slope_deg`` slope limit as obstacles (steep berms and ditch walls;
+    docs/algorithm.md); False = plain robust weights.
+    max_slope_deg: the prior's slope limit (deg, default 45): faces steeper than this are
+    walls, not terrain. Raise it (e.g. 60-75) for the bench faces of pits and cuttings; on
+    street scenes it connects the walls of cars and buildings to the ground
+    (docs/algorithm.md, "Steep faces").
     range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`
     (e.g. ``RangeNoise.from_stereo(focal_px=..., baseline=..., disparity_noise_px=...)``) or
     its coefficient in 1/m with ``sensor_origin`` (cloud coordinates); None = none (lidar).
@@ -178,10 +186,11 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                            smoothing, terrain_prior, range_noise, sensor_origin)
+                                            smoothing, terrain_prior, range_noise, sensor_origin,
+                                            max_slope_deg)
         return _array_fit(positions, quantize, terrain)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
-                           terrain_prior, range_noise, sensor_origin)
+                           terrain_prior, range_noise, sensor_origin, max_slope_deg)
     return frame.product("surface")
 
 
@@ -192,12 +201,15 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
                     smoothing: float = 0.05, terrain_prior: bool = True,
                     range_noise: RangeNoise | float | None = None,
-                    misfit_threshold: bool = True, foot_height: float = FOOT_HEIGHT
+                    misfit_threshold: bool = True, along_normal: bool = True,
+                    foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG
                     ) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
-    range_coefficient * r^2 (r: horizontal range from ``sensor_origin``).
+    range_coefficient * r^2 (r: horizontal range from ``sensor_origin``); with
+    ``along_normal`` (default) both bounds are distances along the surface normal, i.e.
+    vertically sqrt(1 + |grad S|^2) times larger on slopes (at most twice, a 60° face).
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
     just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`), widened with
     ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
@@ -216,16 +228,18 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
-                       misfit_threshold=misfit_threshold, foot_height=foot_height)
+                       misfit_threshold=misfit_threshold, along_normal=along_normal,
+                       foot_height=foot_height)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                            smoothing, terrain_prior, range_noise, origin)
+                                            smoothing, terrain_prior, range_noise, origin,
+                                            max_slope_deg)
         surface = _array_fit(positions, quantize, terrain)
         labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
         return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
     frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
-                           terrain_prior, range_noise, origin)
+                           terrain_prior, range_noise, origin, max_slope_deg)
     frame = segmenter(frame)
     labels = frame.attribute(LABELS)
     return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)

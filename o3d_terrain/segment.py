@@ -31,11 +31,16 @@ from .misfit import block_size, misfit_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_threshold", "heights_above_terrain", "label_heights",
-           "mark_object_feet", "segment_points", "thresholds", "widen_labels"]
+           "mark_object_feet", "relabel_along_normal", "segment_points", "thresholds",
+           "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m
 AUTO_THRESHOLD_FACTOR = 3.5
 AUTO_THRESHOLD_RANGE = (0.1, 0.5)
+
+#: the thresholds are distances along the surface normal (:func:`relabel_along_normal`):
+#: vertically t * sqrt(1 + |grad S|^2), at most this many times t (the factor of a 60° face)
+NORMAL_FACTOR_MAX = 2.0
 
 #: object feet (:func:`mark_object_feet`): column side (m), how high above the terrain an
 #: obstacle point marks its column (m), the share of a column's low points the marks need, the
@@ -112,8 +117,8 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
 def segment_points(surface: TerrainSurface, positions, *, threshold: float | None = 0.2,
                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
                    sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
-                   foot_height: float = FOOT_HEIGHT, foot_cell: float = FOOT_CELL
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   along_normal: bool = True, foot_height: float = FOOT_HEIGHT,
+                   foot_cell: float = FOOT_CELL) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -124,6 +129,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates).
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
         local misfit to the ground exceeds the noise (:mod:`o3d_terrain.misfit`).
+    along_normal: measure both thresholds along the surface normal instead of vertically
+        (the vertical threshold grows by sqrt(1 + |grad S|^2), at most x2, on slopes;
+        :func:`relabel_along_normal`); False = vertical thresholds.
     foot_height: TERRAIN points in ``foot_cell`` columns that hold OBSTACLE points less than
         this high above the terrain (above the local noise, at least 30 % of the column's low
         points, an object at least 0.35 m high in the column or beside it) become OBSTACLE
@@ -153,6 +161,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:
         widen_labels(labels, h, local, threshold)
+    if along_normal and isinstance(surface, TerrainSurface):
+        relabel_along_normal(labels, h, p, surface, threshold=threshold,
+                             below_threshold=below_threshold,
+                             range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold)
@@ -211,6 +223,36 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
         float(foot_height), float(fraction), float(rise), float(object_height),
         float(noise_cell), float(noise_factor),
         float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE)))
+
+
+def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,
+                         surface: TerrainSurface, *, threshold: float, below_threshold: float,
+                         range_coefficient: float = 0.0, sensor_origin=(0.0, 0.0, 0.0),
+                         cap: float = NORMAL_FACTOR_MAX) -> None:
+    """In place: the thresholds taken along the surface normal instead of vertically.
+
+    A point on terrain of slope theta lies off a surface that follows it by its noise along
+    the normal, which is 1 / cos(theta) = sqrt(1 + |grad S|^2) times more vertically (and the
+    surface's own error is, too): a vertical threshold that fits flat ground cuts the terrain
+    of slopes and faces. OBSTACLE points with h <= t(r) * f and BELOW_TERRAIN points with
+    h >= -below_threshold * f become TERRAIN, f = min(sqrt(1 + |grad S|^2), ``cap``) at the
+    point (t(r): :func:`thresholds`). Only the points within ``cap`` times the thresholds are
+    looked at, so the surface's gradient is evaluated at few points."""
+    p = _positions(positions)
+    t = thresholds(p, threshold=threshold, range_coefficient=range_coefficient,
+                   sensor_origin=sensor_origin) if range_coefficient else float(threshold)
+    obstacle = (labels == TerrainLabel.OBSTACLE) & (heights <= cap * t)
+    below = (labels == TerrainLabel.BELOW_TERRAIN) & (heights >= -cap * below_threshold)
+    candidates = np.flatnonzero(obstacle | below)
+    if candidates.size == 0:
+        return
+    gx, gy = surface.gradient(p[candidates, 0], p[candidates, 1])
+    factor = np.sqrt(1.0 + gx * gx + gy * gy)
+    factor = np.where(np.isfinite(factor), np.minimum(factor, cap), 1.0)
+    h = heights[candidates]
+    tc = t[candidates] if isinstance(t, np.ndarray) else t
+    ok = np.where(obstacle[candidates], h <= tc * factor, h >= -below_threshold * factor)
+    labels[candidates[ok]] = TerrainLabel.TERRAIN
 
 
 def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,

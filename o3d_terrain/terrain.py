@@ -34,9 +34,14 @@ from .spline import GridBasis, TerrainSurface
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "terrain_prior_mask", "METHODS"]
+           "default_control_points", "terrain_prior_mask", "METHODS", "MAX_SLOPE_DEG"]
 
 METHODS = ("robust", "paper")
+
+#: the terrain prior's slope limit (deg): steeper faces are walls (a vehicle's, a building's)
+#: and not terrain; raising it lets bench faces of pits and cuttings be terrain but connects
+#: the walls of cars and buildings to the ground (docs/algorithm.md, "Steep faces")
+MAX_SLOPE_DEG = 45.0
 
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
@@ -113,7 +118,7 @@ def fit_grid_detailed(
     rational: bool = True,
     max_iterations: int = 30,
     terrain_prior: bool = True,
-    max_slope_deg: float = 45.0,
+    max_slope_deg: float = MAX_SLOPE_DEG,
     gap_slope_deg: float = 20.0,
     max_obstacle_width: float = 40.0,
     positions: np.ndarray | None = None,
@@ -251,7 +256,7 @@ def fit_grid_detailed(
     return TerrainFit(surface, records, weights, samples, equalized, outliers, noise)
 
 
-def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = 45.0,
+def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = MAX_SLOPE_DEG,
                        gap_slope_deg: float = 20.0, max_obstacle_width: float = 40.0,
                        tolerance: float = 0.09) -> tuple[np.ndarray, np.ndarray]:
     """(connected, compact) masks over the grid's cells, from the lowest point of each cell.

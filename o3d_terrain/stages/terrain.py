@@ -11,7 +11,7 @@ from ..grid import HeightGrid
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points
-from ..terrain import METHODS, TerrainFit, fit_grid_detailed
+from ..terrain import MAX_SLOPE_DEG, METHODS, TerrainFit, fit_grid_detailed
 from .base import Stage, stage
 
 
@@ -56,7 +56,7 @@ class RationalBSplineTerrain(Stage):
              "have no vertical extent beyond the local terrain rise are not rejected as "
              "obstacles (steep berms, ditch walls); false = plain robust weights",
     )
-    max_slope_deg: float = option(45.0, unit="deg", rule=Range(1, 89),
+    max_slope_deg: float = option(MAX_SLOPE_DEG, unit="deg", rule=Range(1, 89),
                                   help="terrain_prior: steepest terrain the prior accepts")
     gap_slope_deg: float = option(20.0, unit="deg", rule=Range(0, 89),
                                   help="terrain_prior: slope of the cone that crosses empty cells")
@@ -142,7 +142,9 @@ class Segmenter(Stage):
     Height above terrain h = z - S(x, y). TERRAIN (1) when -below_threshold <= h <= t(r),
     OBSTACLE (2) above, BELOW_TERRAIN (3) below, UNKNOWN (0) for non-finite points and
     points outside the surface's region; t(r) = threshold + range_coefficient * r^2 with r the
-    horizontal range from sensor_origin (stereo depth noise grows with range squared).
+    horizontal range from sensor_origin (stereo depth noise grows with range squared). With
+    along_normal both thresholds are distances along the surface normal: on a slope theta
+    they are 1 / cos(theta) times larger vertically (at most twice, a 60 degree face).
     Then the feet of objects: TERRAIN points in a foot_cell x foot_cell column whose points are
     for a good part (30 %) OBSTACLE points less than foot_height above the terrain, standing
     out of the local noise, next to an object at least 0.35 m high, are the base of that
@@ -167,6 +169,12 @@ class Segmenter(Stage):
         help="with threshold null: where 1 m cells lie below the surface by more than the "
              "noise (terrain the control spacing cannot follow), widen the threshold there, "
              "both sides, up to 1.5 m (o3d_terrain.misfit)",
+    )
+    along_normal: bool = option(
+        True,
+        help="measure threshold and below_threshold along the surface normal: vertically "
+             "they grow by sqrt(1 + slope^2), at most x2 (a 60 deg face), where the terrain "
+             "slopes; false = vertical (o3d_terrain.segment.relabel_along_normal)",
     )
     foot_height: float = option(
         FOOT_HEIGHT, unit="m", rule=NON_NEGATIVE,
@@ -196,5 +204,6 @@ class Segmenter(Stage):
                               below_threshold=self.below_threshold,
                               range_coefficient=self.range_coefficient,
                               sensor_origin=self.sensor_origin,
-                              misfit=self.misfit_threshold, foot_height=self.foot_height,
+                              misfit=self.misfit_threshold, along_normal=self.along_normal,
+                              foot_height=self.foot_height,
                               foot_cell=self.foot_cell)
