@@ -87,8 +87,8 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
-                    terrain_prior, range_noise=None, sensor_origin=(0.0, 0.0, 0.0),
-                    max_slope_deg=MAX_SLOPE_DEG):
+                    terrain_prior, range_noise, sensor_origin, max_slope_deg):
+    """The GridQuantize and RationalBSplineTerrain stages of the api's options (cached)."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
     noise = {}
@@ -124,13 +124,8 @@ def _checked_region(positions: np.ndarray, region):
     return extent
 
 
-def _terrain_frame(cloud: Any, region, cell_size, control_points, degree, method,
-                   smoothing, terrain_prior=True, range_noise=None,
-                   sensor_origin=(0.0, 0.0, 0.0), max_slope_deg=MAX_SLOPE_DEG) -> Frame:
-    """The shared path of the api: GridQuantize then RationalBSplineTerrain on the cloud."""
-    quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                        smoothing, terrain_prior, range_noise, sensor_origin,
-                                        max_slope_deg)
+def _terrain_frame(cloud: Any, quantize: GridQuantize, terrain: RationalBSplineTerrain) -> Frame:
+    """The api's path for clouds and frames: GridQuantize then RationalBSplineTerrain."""
     frame = as_frame(cloud)
     _checked_region(frame.positions, quantize.region)
     return terrain(quantize(frame))
@@ -183,15 +178,13 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
+    quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
+                                        smoothing, terrain_prior, range_noise, sensor_origin,
+                                        max_slope_deg)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
-        quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                            smoothing, terrain_prior, range_noise, sensor_origin,
-                                            max_slope_deg)
         return _array_fit(positions, quantize, terrain)
-    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
-                           terrain_prior, range_noise, sensor_origin, max_slope_deg)
-    return frame.product("surface")
+    return _terrain_frame(cloud, quantize, terrain).product("surface")
 
 
 def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
@@ -222,24 +215,19 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
-    try:
-        origin = tuple(float(v) for v in sensor_origin)
-    except (TypeError, ValueError):
-        raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
+    origin = _origin(sensor_origin)
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,
                        foot_height=foot_height)
+    quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
+                                        smoothing, terrain_prior, range_noise, origin,
+                                        max_slope_deg)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
-        quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                            smoothing, terrain_prior, range_noise, origin,
-                                            max_slope_deg)
         surface = _array_fit(positions, quantize, terrain)
         labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
         return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
-    frame = _terrain_frame(cloud, region, cell_size, control_points, degree, method, smoothing,
-                           terrain_prior, range_noise, origin, max_slope_deg)
-    frame = segmenter(frame)
+    frame = segmenter(_terrain_frame(cloud, quantize, terrain))
     labels = frame.attribute(LABELS)
     return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -9,7 +11,7 @@ import pytest
 from o3d_terrain.api import fit_terrain, segment_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG
-from o3d_terrain.segment import TerrainLabel, segment_points
+from o3d_terrain.segment import NORMAL_FACTOR_MAX, TerrainLabel, segment_points
 from o3d_terrain.spline import make_lsq_surface
 from o3d_terrain.stages import GridQuantize, RationalBSplineTerrain, Segmenter, SlopeEstimator
 
@@ -30,10 +32,10 @@ def scene(seed=0, n=30_000):
     return np.c_[x, y, z], truth
 
 
-def plane_surface():
+def plane_surface(grade=0.1):
     x = np.linspace(0, 30, 31)
     y = np.linspace(-10, 10, 21)
-    return make_lsq_surface(x, y, 0.1 * x[:, None] + 0 * y[None, :], control_points=(5, 5))
+    return make_lsq_surface(x, y, grade * x[:, None] + 0 * y[None, :], control_points=(5, 5))
 
 
 def test_labels_follow_the_height_rule():
@@ -71,6 +73,39 @@ def test_segment_terrain_is_a_segment_plane_drop_in():
     assert (mask & is_ground).sum() / is_ground.sum() > 0.99
     assert not mask[truth != TerrainLabel.TERRAIN].any()
     np.testing.assert_allclose(surface.slope_deg(10.0, 0.0), np.degrees(np.arctan(0.1)), atol=0.5)
+
+
+@pytest.mark.parametrize("grade", [0.0, 0.5, 1.0, 3.0])
+def test_thresholds_are_distances_along_the_surface_normal(grade):
+    s = plane_surface(grade)
+    factor = min(math.sqrt(1.0 + grade * grade), NORMAL_FACTOR_MAX)
+    t, below = 0.2, 0.5
+    # points in separate columns (feet of objects off anyway) just inside / outside the
+    # vertical bounds t * factor and -below * factor
+    offsets = [0.97 * t * factor, 1.03 * t * factor, -0.97 * below * factor,
+               -1.03 * below * factor]
+    xs = [5.0, 10.0, 15.0, 20.0]
+    pts = np.array([[x, 0.0, grade * x + dz] for x, dz in zip(xs, offsets)])
+    labels, h = segment_points(s, pts, threshold=t, below_threshold=below, foot_height=0)
+    np.testing.assert_allclose(h, offsets, atol=1e-9)
+    assert labels.tolist() == [TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,
+                               TerrainLabel.TERRAIN, TerrainLabel.BELOW_TERRAIN]
+    # vertical thresholds: beyond t and -below the points are not terrain whatever the slope
+    vertical, _ = segment_points(s, pts, threshold=t, below_threshold=below, foot_height=0,
+                                 along_normal=False)
+    expected = [TerrainLabel.TERRAIN if abs(dz) <= (t if dz > 0 else below) else
+                (TerrainLabel.OBSTACLE if dz > 0 else TerrainLabel.BELOW_TERRAIN)
+                for dz in offsets]
+    assert vertical.tolist() == expected
+
+
+def test_along_normal_scales_the_range_dependent_threshold():
+    s = plane_surface(1.0)  # factor sqrt(2)
+    t, k = 0.2, 0.001
+    x = 20.0  # t(r) = 0.2 + 0.001 * 400 = 0.6 m
+    pts = np.array([[x, 0.0, x + 0.6 * 1.38], [x + 1.0, 0.0, x + 1.0 + 0.7 * 1.45]])
+    labels, _ = segment_points(s, pts, threshold=t, range_coefficient=k, foot_height=0)
+    assert labels.tolist() == [TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE]
 
 
 def test_tensor_cloud_numpy_and_auto_threshold_agree():

@@ -1,7 +1,7 @@
-"""Steep terrain: the terrain prior's slope limit (``max_slope_deg``) through the drop-in
-functions (the bench faces of a pit, steeper than the default 45 degrees, are walls to the
-prior until the limit is raised), and the thresholds measured along the surface normal
-(``along_normal``; docs/algorithm.md, "Steep faces")."""
+"""Steep faces: the terrain prior's slope limit (``max_slope_deg``) through the drop-in
+functions. The bench faces of a pit, steeper than the default 45 degrees, are walls to the
+prior until the limit is raised (docs/algorithm.md, "Steep slopes and faces"; the thresholds
+along the surface normal are tested in tests/test_segment.py)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,6 @@ import pytest
 
 from o3d_terrain.api import fit_terrain, segment_terrain
 from o3d_terrain.errors import InputError
-from o3d_terrain.segment import NORMAL_FACTOR_MAX, TerrainLabel, segment_points
-from o3d_terrain.spline import make_lsq_surface
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 
 
@@ -70,41 +68,3 @@ def test_a_slope_limit_out_of_range_is_rejected_with_its_name(benches, value):
         with pytest.raises(InputError, match="max_slope_deg"):
             call(p[:1000], max_slope_deg=value)
 
-
-def _sloped_plane(grade):
-    x = np.linspace(0, 30, 31)
-    y = np.linspace(-10, 10, 21)
-    return make_lsq_surface(x, y, grade * x[:, None] + 0 * y[None, :], control_points=(5, 5))
-
-
-@pytest.mark.parametrize("grade", [0.0, 0.5, 1.0, 3.0])
-def test_thresholds_are_distances_along_the_surface_normal(grade):
-    s = _sloped_plane(grade)
-    factor = min(math.sqrt(1.0 + grade * grade), NORMAL_FACTOR_MAX)
-    t, below = 0.2, 0.5
-    # points in separate columns (feet of objects off anyway) just inside / outside the
-    # vertical bounds t * factor and -below * factor
-    offsets = [0.97 * t * factor, 1.03 * t * factor, -0.97 * below * factor,
-               -1.03 * below * factor]
-    xs = [5.0, 10.0, 15.0, 20.0]
-    pts = np.array([[x, 0.0, grade * x + dz] for x, dz in zip(xs, offsets)])
-    labels, h = segment_points(s, pts, threshold=t, below_threshold=below, foot_height=0)
-    np.testing.assert_allclose(h, offsets, atol=1e-9)
-    assert labels.tolist() == [TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,
-                               TerrainLabel.TERRAIN, TerrainLabel.BELOW_TERRAIN]
-    # vertical thresholds: beyond t and -below the points are not terrain whatever the slope
-    vertical, _ = segment_points(s, pts, threshold=t, below_threshold=below, foot_height=0,
-                                 along_normal=False)
-    expected = [TerrainLabel.TERRAIN if abs(dz) <= (t if dz > 0 else below) else
-                (TerrainLabel.OBSTACLE if dz > 0 else TerrainLabel.BELOW_TERRAIN)
-                for dz in offsets]
-    assert vertical.tolist() == expected
-
-
-def test_along_normal_scales_the_range_dependent_threshold():
-    s = _sloped_plane(1.0)  # factor sqrt(2)
-    t, k = 0.2, 0.001
-    x = 20.0  # t(r) = 0.2 + 0.001 * 400 = 0.6 m
-    pts = np.array([[x, 0.0, x + 0.6 * 1.38], [x + 1.0, 0.0, x + 1.0 + 0.7 * 1.45]])
-    labels, _ = segment_points(s, pts, threshold=t, range_coefficient=k, foot_height=0)
-    assert labels.tolist() == [TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE]
