@@ -10,7 +10,9 @@ are medians of ``--repeats`` runs after one warm-up run (which also compiles num
 A missing method, peer or data set gives "n/a" with the reason, never a crash.
 
 Data: the real scans in ../shared/data (or $O3D_TERRAIN_DATA) and the synthetic scenes;
-``kitti-tilt`` is the SemanticKITTI frames rotated about the sensor origin (KITTI_TILTS).
+``kitti-tilt`` is the SemanticKITTI frames rotated about the sensor origin (KITTI_TILTS);
+``kitti-lines`` the same frames with every 2nd or 4th scan line only (KITTI_LINES), what a
+32- or 16-line lidar sees.
 """
 
 from __future__ import annotations
@@ -78,6 +80,15 @@ def load_frames(spec: str, seed: int = 0):
                              f"{', '.join(KITTI_TILTS)}")
         frames, failures = ds.iter_frames(ds.semantic_kitti_frames(root / "kitti_seq00_lidar"))
         return [tilt_frame(f, *KITTI_TILTS[tilt]) for f in frames], failures
+    if spec.startswith("kitti-lines:"):
+        if root is None:
+            raise FileNotFoundError("no ../shared/data folder (set O3D_TERRAIN_DATA)")
+        lines = spec[len("kitti-lines:"):]
+        if lines not in KITTI_LINES:
+            raise ValueError(f"unknown line count '{lines}' in '{spec}'; choose one of "
+                             f"{', '.join(KITTI_LINES)}")
+        frames, failures = ds.iter_frames(ds.semantic_kitti_frames(root / "kitti_seq00_lidar"))
+        return [line_frame(f, KITTI_LINES[lines]) for f in frames], failures
     if spec == "synthetic":
         return ds.iter_frames(ds.synthetic_frames(list(ds.synthetic_scene_names()), seed=seed))
     if spec in ("lidar120k", "stereo300k", "paper34x22"):
@@ -115,6 +126,41 @@ def tilt_frame(frame, roll_deg: float, pitch_deg: float):
     rotation = tilt_rotation(roll_deg, pitch_deg)
     positions = np.ascontiguousarray(frame.positions @ rotation.T)
     return dataclasses.replace(frame, positions=positions)
+
+
+#: the ``kitti-lines`` data set: the SemanticKITTI frames (64 scan lines, about 0.4° apart)
+#: keeping every k-th scan line, what a sparser lidar resolves vertically: 32 lines (~0.8°,
+#: a 32-line sensor) and 16 lines (~1.6°, close to a 16-line sensor's 2°); "64" is the frame
+#: as recorded
+KITTI_LINES = {"64": 1, "32": 2, "16": 4}
+
+
+def scan_lines(positions):
+    """Scan-line index (0, 1, ...) of each point of a spinning-lidar frame stored line by line,
+    as the SemanticKITTI ``.bin`` files are: each line sweeps the azimuth from about 0° to
+    360° and the next one starts again near 0°, so a new line begins where the azimuth in
+    [0°, 360°) drops by more than 180° from one point to the next."""
+    import numpy as np
+
+    p = np.asarray(positions, dtype=np.float64)
+    if len(p) == 0:
+        return np.zeros(0, np.int64)
+    azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0])) % 360.0
+    return np.concatenate([[0], np.cumsum(np.diff(azimuth) < -180.0)]).astype(np.int64)
+
+
+def line_frame(frame, every: int):
+    """A copy of a labelled frame with only every ``every``-th scan line (:func:`scan_lines`,
+    lines 0, every, 2 every, ...); every mask is subset alike."""
+    import dataclasses
+
+    import numpy as np
+
+    keep = scan_lines(frame.positions) % int(every) == 0
+    return dataclasses.replace(
+        frame, positions=np.ascontiguousarray(frame.positions[keep]),
+        is_ground=frame.is_ground[keep], scored=frame.scored[keep],
+        obstacle=None if frame.obstacle is None else frame.obstacle[keep])
 
 
 def _standard_frame(spec: str, seed: int):
@@ -355,7 +401,8 @@ def collect(args) -> dict:
                           + (f" --timeout {args.timeout:g}" if args.timeout != 240 else ""),
                "segment": {}, "stages": {}, "terrain": None}
     methods = [OURS, *PEER_NAMES]
-    plan = [("kitti", True), ("kitti-tilt", False), ("las", False), ("synthetic", False),
+    plan = [("kitti", True), ("kitti-tilt", False), ("kitti-lines", False), ("las", False),
+            ("synthetic", False),
             ("lidar120k", True), ("stereo300k", True), ("paper34x22", False), ("las700k", True)]
     if args.only:
         plan = [p for p in plan if p[0] in args.only]
@@ -368,12 +415,14 @@ def collect(args) -> dict:
             expanded += [(f"las:{t}", memory) for t in tiles] or [("las", memory)]
         elif dataset == "kitti-tilt":  # one task per tilt, the same frames rotated
             expanded += [(f"kitti-tilt:{t}", memory) for t in KITTI_TILTS]
+        elif dataset == "kitti-lines":  # one task per line count
+            expanded += [(f"kitti-lines:{n}", memory) for n in KITTI_LINES]
         else:
             expanded.append((dataset, memory))
     for dataset, memory in expanded:
         for method in methods:
-            repeats = (args.repeats if not dataset.startswith(("las", "kitti-tilt"))
-                       else max(1, args.repeats // 2))
+            variant = dataset.startswith(("las", "kitti-tilt", "kitti-lines"))
+            repeats = max(1, args.repeats // 2) if variant else args.repeats
             if dataset == "paper34x22" and method != OURS:
                 continue  # the region-limited configuration is ours only
             task = {"task": "segment", "dataset": dataset, "method": method,
@@ -424,8 +473,9 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per frame (median)")
     parser.add_argument("--timeout", type=float, default=240.0, help="seconds per measurement")
     parser.add_argument("--quick", action="store_true", help="2 repeats")
-    parser.add_argument("--only", nargs="*", help="only these data sets (kitti, kitti-tilt, las, "
-                        "synthetic, lidar120k, stereo300k, paper34x22, las700k, kitti1, terrain)")
+    parser.add_argument("--only", nargs="*", help="only these data sets (kitti, kitti-tilt, "
+                        "kitti-lines, las, synthetic, lidar120k, stereo300k, paper34x22, "
+                        "las700k, kitti1, terrain)")
     parser.add_argument("--json", metavar="PATH", help="also write the raw results as JSON")
     parser.add_argument("--from-json", metavar="PATH", help="render docs from saved results")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -594,53 +644,79 @@ def _tilt_label(tilt: str) -> str:
     return ", ".join(parts) or "level"
 
 
-def _tilt_f1(results, method) -> dict[str, tuple[float | None, str | None, int]]:
-    """Mean F1 over the frames, the error (or None) and the frame count of each tilt."""
+def _lines_label(lines: str) -> str:
+    return f"{lines} lines" + (" (as recorded)" if KITTI_LINES[lines] == 1 else "")
+
+
+def _variant_f1(results, prefix, variants, method) -> dict[str, tuple[float | None, str | None,
+                                                                       int]]:
+    """Mean F1 over the frames, the error (or None) and the frame count of each variant of a
+    data-set family (``prefix``:variant, e.g. kitti-tilt:pitch5)."""
     out = {}
-    for tilt in KITTI_TILTS:
-        frames, error = _frames(results, f"kitti-tilt:{tilt}", method)
-        out[tilt] = (_mean([f["f1"] for f in frames]), error, len(frames))
+    for variant in variants:
+        frames, error = _frames(results, f"{prefix}:{variant}", method)
+        out[variant] = (_mean([f["f1"] for f in frames]), error, len(frames))
     return out
 
 
-def _tilt_methods(results) -> list[str]:
+def _variant_methods(results, prefix, variants) -> list[str]:
     return [m for m in (OURS, *PEER_NAMES)
-            if any(f"kitti-tilt:{t}/{m}" in results["segment"] for t in KITTI_TILTS)]
+            if any(f"{prefix}:{v}/{m}" in results["segment"] for v in variants)]
 
 
-def _tilt_table(results) -> list[str]:
-    methods = _tilt_methods(results)
+def _variant_table(results, prefix, variants, label, title, text) -> list[str]:
+    """A method x variant table of mean ground F1 (%) for a data-set family; [] when none of
+    its variants ran."""
+    methods = _variant_methods(results, prefix, variants)
     if not methods:
         return []
-    tilts = list(KITTI_TILTS)
-    lines = ["### SemanticKITTI frames with a tilted sensor", "",
-             "The same three frames with every point rotated about the sensor origin (0, 0, 0) "
-             "by a fixed angle: pitch about the y axis (the ground ahead appears lower by "
-             "x sin θ, as seen by a sensor pitched nose-up), roll about the x axis (the ground on "
-             "the left appears higher by y sin θ); labels unchanged. Every method runs with the "
-             "defaults of the level case (the peer settings below), none is told about the "
-             "tilt. Ground F1 (%), mean over the 3 frames. Open3D's seeded RANSAC does not "
-             "repeat exactly from run to run (on frame 000000 it settles on one of two "
-             "planes), so its differences of about half a point between columns are not the "
-             "tilt.", "",
-             "| method | " + " | ".join(_tilt_label(t) for t in tilts) + " |",
-             "|---|" + "---:|" * len(tilts)]
+    lines = [f"### {title}", "", text, "",
+             "| method | " + " | ".join(label(v) for v in variants) + " |",
+             "|---|" + "---:|" * len(variants)]
     notes = []
     for method in methods:
         cells = []
-        for tilt, (f1, error, count) in _tilt_f1(results, method).items():
+        for variant, (f1, error, count) in _variant_f1(results, prefix, variants,
+                                                        method).items():
             if error:
                 cells.append("n/a")
-                notes.append(f"- {METHOD_LABELS[method]}, {_tilt_label(tilt)}: n/a ({error})")
+                notes.append(f"- {METHOD_LABELS[method]}, {label(variant)}: n/a ({error})")
                 continue
-            failures = _merged(results, f"kitti-tilt:{tilt}", method).get("failures", [])
+            failures = _merged(results, f"{prefix}:{variant}", method).get("failures", [])
             cells.append(_pct(f1) + (f" ({count} of {count + len(failures)} frames)"
                                      if failures else ""))
             for failure in failures:
-                notes.append(f"- {METHOD_LABELS[method]}, {_tilt_label(tilt)}: skipped "
+                notes.append(f"- {METHOD_LABELS[method]}, {label(variant)}: skipped "
                              f"`{failure['name']}`: {failure['reason']}")
         lines.append(f"| {METHOD_LABELS[method]} | " + " | ".join(cells) + " |")
     return lines + [""] + notes + ([""] if notes else [])
+
+
+def _tilt_table(results) -> list[str]:
+    return _variant_table(
+        results, "kitti-tilt", KITTI_TILTS, _tilt_label,
+        "SemanticKITTI frames with a tilted sensor",
+        "The same three frames with every point rotated about the sensor origin (0, 0, 0) "
+        "by a fixed angle: pitch about the y axis (the ground ahead appears lower by "
+        "x sin θ, as seen by a sensor pitched nose-up), roll about the x axis (the ground on "
+        "the left appears higher by y sin θ); labels unchanged. Every method runs with the "
+        "defaults of the level case (the peer settings below), none is told about the "
+        "tilt. Ground F1 (%), mean over the 3 frames. Open3D's seeded RANSAC does not "
+        "repeat exactly from run to run (on frame 000000 it settles on one of two "
+        "planes), so its differences of about half a point between columns are not the "
+        "tilt.")
+
+
+def _lines_table(results) -> list[str]:
+    return _variant_table(
+        results, "kitti-lines", KITTI_LINES, _lines_label,
+        "SemanticKITTI frames seen by a sparser lidar",
+        "The same three frames keeping every 2nd or 4th of the 64 scan lines (a new line "
+        "starts where the azimuth wraps around; `benchmarks/run_all.py`: `scan_lines`, "
+        "`line_frame`): 32 lines about 0.8° apart, as a 32-line sensor, and 16 lines about "
+        "1.6° apart, close to a 16-line sensor's 2°, with the labels of the points kept. "
+        "Every method runs with its defaults; Patchwork++ keeps the 64-line sensor's "
+        "settings (the peer settings below). Ground F1 (%), mean over the 3 frames.")
 
 
 def _figure_tilt(results, figures) -> str | None:
@@ -648,8 +724,8 @@ def _figure_tilt(results, figures) -> str | None:
     import cv2
     import numpy as np
 
-    methods = _tilt_methods(results)
-    series = {m: _tilt_f1(results, m) for m in methods}
+    methods = _variant_methods(results, "kitti-tilt", KITTI_TILTS)
+    series = {m: _variant_f1(results, "kitti-tilt", KITTI_TILTS, m) for m in methods}
     values = [v[0] for s in series.values() for v in s.values() if v[0] is not None]
     if figures is None or len(values) < 2:
         return None
@@ -960,11 +1036,13 @@ def render(results: dict, figures: Path | None = None) -> str:
     if figure:
         out += [f"![F1 against time on SemanticKITTI]({figure})", ""]
     out += _tilt_table(results)
-    figure = _figure_tilt(results, figures) if _tilt_methods(results) else None
+    figure = _figure_tilt(results, figures) \
+        if _variant_methods(results, "kitti-tilt", KITTI_TILTS) else None
     if figure:
         out += [f"![Ground F1 against the tilt angle]({figure})", "",
                 "Ground F1 (%) against the pitch (left) and roll (right) angle; a score below "
                 "the scale is drawn on its bottom edge with its value.", ""]
+    out += _lines_table(results)
     las_table = _per_frame_table(results, "las", "Airborne LAS/LAZ tiles (ASPRS class 2)")
     out += las_table
     out += [] if not las_table else ["Tiles in US feet (`4_6_crop.las`, `autzen_trim.laz`, "

@@ -367,6 +367,55 @@ def test_kitti_tilt_rotates_about_the_sensor_origin_and_keeps_labels(tmp_path, m
         run_all.load_frames("kitti-tilt:pitch7")
 
 
+def test_kitti_lines_keep_every_kth_scan_line_with_its_labels(tmp_path, monkeypatch):
+    run_all = _run_all()
+    # 4 scan lines of 90 points, each sweeping the azimuth from 0.5° to 356.5° at its own
+    # elevation, stored line by line as a spinning lidar's frame is
+    azimuth = np.radians(np.arange(90) * 4.0 + 0.5)
+    lines = [np.stack([10 * np.cos(azimuth), 10 * np.sin(azimuth), np.full(90, -1.0 - k)], 1)
+             for k in range(4)]
+    positions = np.concatenate(lines)
+    assert np.array_equal(run_all.scan_lines(positions), np.repeat(np.arange(4), 90))
+    assert run_all.scan_lines(np.zeros((0, 3))).shape == (0,)
+
+    # a recorded frame: every 2nd line kept, masks subset alike
+    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(360) % 3 == 0,
+                             scored=np.arange(360) % 5 != 0, obstacle=np.arange(360) % 3 == 1)
+    half = run_all.line_frame(frame, 2)
+    keep = np.repeat(np.arange(4), 90) % 2 == 0
+    assert np.array_equal(half.positions, positions[keep])
+    for mask in ("is_ground", "scored", "obstacle"):
+        assert np.array_equal(getattr(half, mask), getattr(frame, mask)[keep])
+    assert np.array_equal(run_all.line_frame(frame, 1).positions, positions)
+
+    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
+    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
+    recorded, _ = run_all.load_frames("kitti")
+    as_recorded, failures = run_all.load_frames("kitti-lines:64")
+    assert not failures and all(np.array_equal(a.positions, b.positions)
+                                for a, b in zip(recorded, as_recorded))
+    with pytest.raises(ValueError, match="unknown line count '8'"):
+        run_all.load_frames("kitti-lines:8")
+
+
+def test_kitti_lines_section_renders_only_when_run():
+    run_all = _run_all()
+    results = {"machine": {"cpu": "cpu", "cores": 2, "memory": "1 GiB", "system": "Linux",
+                           "python": "3", "versions": {}},
+               "date": "today", "command": "python benchmarks/run_all.py --write-docs",
+               "threads": 1, "repeats": 2, "segment": {}, "stages": {}, "terrain": None}
+    title = "### SemanticKITTI frames seen by a sparser lidar"
+    assert title not in run_all.render(results)
+    for lines, f1 in (("64", 0.9), ("32", 0.8), ("16", 0.7)):
+        results["segment"][f"kitti-lines:{lines}/o3d_terrain"] = {
+            "frames": [{"name": "000000", "points": 10, "seconds": 0.01, "f1": f1}],
+            "failures": []}
+    text = run_all.render(results)
+    assert title in text
+    assert "| method | 64 lines (as recorded) | 32 lines | 16 lines |" in text
+    assert "| **o3d_terrain** (`segment_terrain`) | 90.0 | 80.0 | 70.0 |" in text
+
+
 def test_kitti_tilt_section_renders_only_when_run():
     run_all = _run_all()
     results = {"machine": {"cpu": "cpu", "cores": 2, "memory": "1 GiB", "system": "Linux",
