@@ -12,13 +12,15 @@
 3. the LAS tiles (class 2 = ground; 0, 7, 18 ignored; feet converted to metres):
    ``segment_terrain(positions)`` with all defaults; ``--peers`` adds CSF and SMRF (package
    defaults) on the LAS tiles.
-4. ``--only steep``: held-out steep scenes (:func:`steep_scenes`), lidar and tilted lidar,
-   columns as in 1.
+4. ``--only steep``: held-out steep scenes (:func:`steep_scenes`), lidar and tilted lidar
+   (or the lidar sensors of ``--sensors``), columns as in 1.
+``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
+sensors, for the synthetic and the steep scenes.
 
 Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
-     [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
+     [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt,lidar16]
      [--no-terrain-prior] [--no-range-noise] [--no-object-feet]
 (``--no-object-feet``: label by height alone, ``foot_height=0``.)
 """
@@ -75,6 +77,10 @@ def segment_terrain(positions: np.ndarray, method: str = "robust"):
 
 SCENES = ("flat", "hills", "ramp", "ditch_berm", "valley", "mounds", "offroad")
 SENSORS = ("lidar", "stereo", "tilt")
+#: sensors available besides the default ones: ``lidar16``, a 16-channel spinning lidar (2° apart
+#: over ±15°, 0.2° azimuth steps, like the common 16-line units): rings metres apart on the
+#: ground, what the sparse-scan sections of docs/algorithm.md measure
+EXTRA_SENSORS = ("lidar16",)
 F1_THRESHOLD = 0.2  # m above the surface, fixed for ours and for the exact terrain
 BELOW_THRESHOLD = 0.5  # m below (the segment_points default)
 OBSTACLE_HEIGHT = 0.3  # obstacle points higher than this count in the obstacle recall
@@ -122,6 +128,8 @@ def synthetic_row(scene_name, sensor: str, method: str) -> dict[str, float]:
         cloud = sample_lidar(scene, seed=0)
     elif sensor == "tilt":
         cloud = sample_lidar(scene, tilt_deg=(5.0, 3.0), seed=0)
+    elif sensor == "lidar16":
+        cloud = sample_lidar(scene, beams=16, fov_deg=(-15.0, 15.0), azimuth_steps=1800, seed=0)
     else:
         cloud = sample_stereo(scene, seed=0)
     positions = np.asarray(cloud.positions, dtype=np.float64)
@@ -230,7 +238,9 @@ def main() -> None:
     parser.add_argument("--only", default="synthetic,kitti,las")
     parser.add_argument("--method", default="robust")
     parser.add_argument("--scenes", default=",".join(SCENES))
-    parser.add_argument("--sensors", default=",".join(SENSORS))
+    parser.add_argument("--sensors", default=",".join(SENSORS),
+                        help=f"comma-separated, of {', '.join(SENSORS + EXTRA_SENSORS)}; "
+                             "--only steep uses the lidar ones (default lidar,tilt)")
     parser.add_argument("--peers", action="store_true", help="CSF and SMRF on the LAS tiles")
     parser.add_argument("--no-terrain-prior", action="store_true",
                         help="fit with terrain_prior=False (plain robust weights)")
@@ -247,10 +257,16 @@ def main() -> None:
         FIT_OPTIONS["terrain_prior"] = False
     parts = set(args.only.split(","))
     root = data_root()
+    sensors = args.sensors.split(",")
+    unknown = sorted(set(sensors) - set(SENSORS + EXTRA_SENSORS))
+    if unknown:
+        parser.error(f"unknown sensor(s) {', '.join(unknown)}; choose from "
+                     f"{', '.join(SENSORS + EXTRA_SENSORS)}")
     if "synthetic" in parts:
-        run_synthetic(args.method, args.scenes.split(","), args.sensors.split(","))
-    if "steep" in parts:
-        run_synthetic(args.method, steep_scenes(), ("lidar", "tilt"))
+        run_synthetic(args.method, args.scenes.split(","), sensors)
+    if "steep" in parts:  # held-out steep scenes: lidar sensors only
+        run_synthetic(args.method, steep_scenes(),
+                      [s for s in sensors if s != "stereo"] or ["lidar", "tilt"])
     if "kitti" in parts:
         run_kitti(root, args.method)
     if "las" in parts:
