@@ -432,7 +432,6 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     ratios = np.zeros(count)  # W / base of the last pass, remapped onto each layout
     surface = np.zeros(count)  # the surface at the valid cells
     denominators = np.zeros(count)  # its denominator (from the solve's assembly)
-    ones = np.ones(count)  # the remap denominator's values (the valid mask)
     have_ratios = False
     records = []
     equalized = np.zeros(count, bool)
@@ -440,18 +439,48 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     noise = noise_floor
     cell_sigma = None  # per-cell noise scale of the sensor model, from the second layout on
     no_sigma = np.zeros(1)
+    # the coarse layouts fit the measured cells only: the filled ones (their neighbours' mean
+    # at filled_weight, about half the valid cells of a lidar frame) add nothing a coarse
+    # layout can resolve; they join at the finest layout, weighed against the last coarse
+    # surface (docs/performance.md, "Coarse layouts on the measured cells")
+    filled = np.ones(count, bool)
+    filled[measured_cells] = False
+    filled = np.flatnonzero(filled)
+    coarse = measured_cells if filled.size else cells
+    coarse_surface = np.zeros(coarse.size)
+    coarse_denominators = np.zeros(coarse.size)
     for level, n in enumerate(layouts):
         basis = GridBasis(xl, yl, n, degree, region_local)
-        coverage = _project(basis, ones, valid_cells)  # remap denominator, per layout
         final = level == len(layouts) - 1
+        if final and level > 0 and filled.size:
+            # the filled cells: the last coarse surface at them, then their weights, ratios
+            # and equalized samples from it (one robust pass over them alone)
+            coarse_basis, q, r = last_fit
+            surface[filled] = coarse_basis.evaluate_at_cells(q, r, valid_cells[filled])
+            _tk.robust_pass(
+                z, surface, base_cells, filled, compact, use_prior, prior_spread, noise,
+                no_sigma if cell_sigma is None else cell_sigma, cell_sigma is not None,
+                above_k, below_k, clip_k, p, w, False, w, ratios, p, equalized)
+        # this layout's cells: their positions in the vectors, their flat grid indices, and
+        # where the surface and its denominators at them go
+        on = cells if final else coarse
+        grid_cells = valid_cells if final else valid_cells[coarse]
+        out, out_denominators = (surface, denominators) if final else \
+            (coarse_surface, coarse_denominators)
+        coverage = _project(basis, np.ones(on.size), grid_cells)  # remap denominator
         passes = 4 if final else 2
         previous_w = w
         for k in range(passes):
             iteration += 1
-            r = _control_weights(ratios, coverage, basis, valid_cells) \
+            p_on, w_on, ratios_on = (p, w, ratios) if final else (p[on], w[on], ratios[on])
+            r = _control_weights(ratios_on, coverage, basis, grid_cells) \
                 if (have_ratios and rational) else np.ones(n)
-            q = basis.solve_cells(valid_cells, p, w, r, smoothing, denominators=denominators)
-            s = basis.evaluate_at_cells(q, r, valid_cells, surface, denominators)
+            q = basis.solve_cells(grid_cells, p_on, w_on, r, smoothing,
+                                  denominators=out_denominators)
+            s = basis.evaluate_at_cells(q, r, grid_cells, out, out_denominators)
+            if not final:
+                surface[on] = s
+                s = surface
             # residuals of the original samples (not the equalized ones): noise scale on the
             # terrain side, bounded eq. 3 weights, equalization, in one pass over the cells
             noise, mean_error = _tk.residual_scale(z, s, measured_cells, noise_floor)
@@ -459,7 +488,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             w_next = weight_buffers[iteration % 2]
             p_next = sample_buffers[iteration % 2]
             moved, change = _tk.robust_pass(
-                z, s, base_cells, cells, compact, use_prior, prior_spread, noise,
+                z, s, base_cells, on, compact, use_prior, prior_spread, noise,
                 no_sigma if cell_sigma is None else cell_sigma, cell_sigma is not None,
                 above_k, below_k, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
                 equalized)
@@ -471,6 +500,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             previous_w = w
             if iteration >= max_iterations and final:
                 break
+        last_fit = (basis, q, r)
         if grid_noise is not None and not final:
             # the sensor's noise under this layout's surface: samples and scales of the next
             z_grid, sigma = _noise_update(grid_noise, basis.evaluate(q, r), z_grid, z0, measured)

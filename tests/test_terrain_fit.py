@@ -68,6 +68,25 @@ def test_fit_outputs_cover_measured_filled_and_empty_cells():
         assert fit.outliers[on_box].all() and not fit.outliers[in_fit & ~on_box].any()
 
 
+def test_filled_cells_off_the_terrain_are_weighed_down_at_the_finest_layout():
+    # the coarse layouts fit the measured cells only; filled cells join at the finest layout,
+    # weighed against the last coarse surface: a band of filled cells that took an obstacle's
+    # height (a neighbour mean) must end as outliers with a low weight, the surface on the plane
+    plane = lambda x, y: 0.2 * x - 0.1 * y + 3.0  # noqa: E731
+    grid, xc, yc = analytic_grid(plane)
+    state = grid.state.copy()
+    state[20:24, 10:30] = FILLED
+    z = np.where(state == FILLED, grid.z + 1.0, grid.z)
+    grid = HeightGrid(grid.x_min, grid.y_min, grid.cell_size, z, grid.count, state)
+    filled = state == FILLED
+    for control_points in ((12, 12), (24, 20)):  # two and three layouts
+        fit = fit_grid_detailed(grid, control_points=control_points, terrain_prior=False)
+        assert fit.outliers[filled].all()
+        assert fit.sample_weights[filled].max() < 0.01 * 0.3
+        truth = plane(xc[:, None], yc[None, :])
+        np.testing.assert_allclose(fit.surface(xc[:, None], yc[None, :]), truth, atol=0.02)
+
+
 def test_paper_rational_weights_bend_a_tilted_plane():
     # measured failure of the printed method (docs/algorithm.md): R derived from W, Q fitted
     # without R, so a perfect plane is no longer reproduced
