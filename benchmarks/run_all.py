@@ -72,28 +72,30 @@ def load_frames(spec: str, seed: int = 0):
             items = [ds.read_las_frame(root / "las" / "las_with_several_extra_byte_bloc.laz")]
         return ds.iter_frames(items)
     if spec.startswith("kitti-tilt:"):
-        if root is None:
-            raise FileNotFoundError("no ../shared/data folder (set O3D_TERRAIN_DATA)")
-        tilt = spec[len("kitti-tilt:"):]
-        if tilt not in KITTI_TILTS:
-            raise ValueError(f"unknown tilt '{tilt}' in '{spec}'; choose one of "
-                             f"{', '.join(KITTI_TILTS)}")
-        frames, failures = ds.iter_frames(ds.semantic_kitti_frames(root / "kitti_seq00_lidar"))
-        return [tilt_frame(f, *KITTI_TILTS[tilt]) for f in frames], failures
+        return _kitti_variant(root, spec, KITTI_TILTS, "tilt",
+                              lambda f, tilt: tilt_frame(f, *tilt))
     if spec.startswith("kitti-lines:"):
-        if root is None:
-            raise FileNotFoundError("no ../shared/data folder (set O3D_TERRAIN_DATA)")
-        lines = spec[len("kitti-lines:"):]
-        if lines not in KITTI_LINES:
-            raise ValueError(f"unknown line count '{lines}' in '{spec}'; choose one of "
-                             f"{', '.join(KITTI_LINES)}")
-        frames, failures = ds.iter_frames(ds.semantic_kitti_frames(root / "kitti_seq00_lidar"))
-        return [line_frame(f, KITTI_LINES[lines]) for f in frames], failures
+        return _kitti_variant(root, spec, KITTI_LINES, "line count", line_frame)
     if spec == "synthetic":
         return ds.iter_frames(ds.synthetic_frames(list(ds.synthetic_scene_names()), seed=seed))
     if spec in ("lidar120k", "stereo300k", "paper34x22"):
         return [_standard_frame(spec, seed)], []
     raise ValueError(f"unknown benchmark data set '{spec}'")
+
+
+def _kitti_variant(root, spec: str, variants: dict, what: str, make):
+    """The SemanticKITTI frames of a ``family:variant`` data set (kitti-tilt, kitti-lines):
+    ``make(frame, variants[variant])`` of each frame, and the frames that failed to load."""
+    from o3d_terrain.evaluation import datasets as ds
+
+    if root is None:
+        raise FileNotFoundError("no ../shared/data folder (set O3D_TERRAIN_DATA)")
+    variant = spec.split(":", 1)[1]
+    if variant not in variants:
+        raise ValueError(f"unknown {what} '{variant}' in '{spec}'; choose one of "
+                         f"{', '.join(variants)}")
+    frames, failures = ds.iter_frames(ds.semantic_kitti_frames(root / "kitti_seq00_lidar"))
+    return [make(f, variants[variant]) for f in frames], failures
 
 
 #: the ``kitti-tilt`` data set: the SemanticKITTI frames rotated about the sensor origin by

@@ -335,6 +335,14 @@ def _run_all():
     return module
 
 
+def _no_results() -> dict:
+    """What run_all.collect returns when nothing ran: the page's frame without a table."""
+    return {"machine": {"cpu": "cpu", "cores": 2, "memory": "1 GiB", "system": "Linux",
+                        "python": "3", "versions": {}},
+            "date": "today", "command": "python benchmarks/run_all.py --write-docs",
+            "threads": 1, "repeats": 2, "segment": {}, "stages": {}, "terrain": None}
+
+
 def test_kitti_tilt_rotates_about_the_sensor_origin_and_keeps_labels(tmp_path, monkeypatch):
     run_all = _run_all()
     s10, c10 = math.sin(math.radians(10)), math.cos(math.radians(10))
@@ -400,10 +408,7 @@ def test_kitti_lines_keep_every_kth_scan_line_with_its_labels(tmp_path, monkeypa
 
 def test_kitti_lines_section_renders_only_when_run():
     run_all = _run_all()
-    results = {"machine": {"cpu": "cpu", "cores": 2, "memory": "1 GiB", "system": "Linux",
-                           "python": "3", "versions": {}},
-               "date": "today", "command": "python benchmarks/run_all.py --write-docs",
-               "threads": 1, "repeats": 2, "segment": {}, "stages": {}, "terrain": None}
+    results = _no_results()
     title = "### SemanticKITTI frames seen by a sparser lidar"
     assert title not in run_all.render(results)
     for lines, f1 in (("64", 0.9), ("32", 0.8), ("16", 0.7)):
@@ -418,10 +423,7 @@ def test_kitti_lines_section_renders_only_when_run():
 
 def test_kitti_tilt_section_renders_only_when_run():
     run_all = _run_all()
-    results = {"machine": {"cpu": "cpu", "cores": 2, "memory": "1 GiB", "system": "Linux",
-                           "python": "3", "versions": {}},
-               "date": "today", "command": "python benchmarks/run_all.py --write-docs",
-               "threads": 1, "repeats": 2, "segment": {}, "stages": {}, "terrain": None}
+    results = _no_results()
     title = "### SemanticKITTI frames with a tilted sensor"
     assert title not in run_all.render(results)
 
