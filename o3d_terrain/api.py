@@ -19,7 +19,7 @@ from .frame import LABELS, Frame, as_frame
 from .grid import region_of
 from .ground_layer import default_layer
 from .noise import RangeNoise
-from .segment import FOOT_HEIGHT, TerrainLabel
+from .segment import AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, TerrainLabel
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
@@ -144,8 +144,9 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
     return terrain._guard(lambda: terrain.fit(grid, positions)).surface
 
 
-def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *, factor: float = 3.5,
-                   low: float = 0.1, high: float = 0.5) -> float:
+def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *,
+                   factor: float = AUTO_THRESHOLD_FACTOR, low: float = AUTO_THRESHOLD_RANGE[0],
+                   high: float = AUTO_THRESHOLD_RANGE[1]) -> float:
     """Obstacle threshold from the data: ``factor`` times the robust spread of the points
     at or below the surface (terrain noise; obstacles never lie below it), in [low, high] m
     (:func:`o3d_terrain.segment.auto_threshold` of the heights above the surface)."""
@@ -204,7 +205,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     ``along_normal`` (default) both bounds are distances along the surface normal, i.e.
     vertically sqrt(1 + |grad S|^2) times larger on slopes (at most twice, a 60° face).
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
-    just below the surface, clipped to [0.1, 0.5] m (:func:`auto_threshold`), widened with
+    just below the surface, clipped to [0.13, 0.5] m (:func:`auto_threshold`), widened with
     ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
     (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). ``foot_height``: terrain points in a
     0.15 m x/y column that also holds obstacle points less than this high above the terrain

@@ -18,7 +18,7 @@ def run(output_dir, input_path=None):
     frame = GridQuantize(cell_size=0.5)(frame)
     frame = RationalBSplineTerrain()(frame)
     frame = SlopeEstimator()(frame)
-    frame = Segmenter(range_coefficient=0.0005)(frame)
+    frame = Segmenter(threshold=0.2, range_coefficient=0.0005)(frame)
     out = Path(output_dir)
     for writer in (
         WriteImage(product="disparity", path="disparity.png"),

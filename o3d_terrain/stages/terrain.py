@@ -154,10 +154,12 @@ class Segmenter(Stage):
     reads = ("surface",)
     writes_attributes = (LABELS, HEIGHTS_ABOVE_TERRAIN)
 
-    threshold: float = option(0.2, kind=float, nullable=True, unit="m", rule=POSITIVE,
+    threshold: float = option(None, kind=float, nullable=True, unit="m", rule=POSITIVE,
                               help="height above the terrain that makes a point an obstacle; "
-                                   "null = from the data: 3.5 times the robust noise of the "
-                                   "points below the surface, in [0.1, 0.5] m")
+                                   "null (default, as segment_terrain) = from the data: 3.5 "
+                                   "times the robust noise of the points below the surface, "
+                                   "in [0.13, 0.5] m, widened where the surface misfits "
+                                   "(misfit_threshold)")
     below_threshold: float = option(0.5, unit="m", rule=POSITIVE,
                                     help="depth below the terrain that makes a point noise")
     range_coefficient: float = option(0.0, unit="1/m", rule=NON_NEGATIVE,
