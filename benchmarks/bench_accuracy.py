@@ -19,7 +19,7 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt]
-     [--no-terrain-prior] [--no-range-noise] [--no-object-feet]
+     [--no-terrain-prior] [--no-range-noise] [--no-object-feet] [--cell-plane]
 (``--no-object-feet``: label by height alone, ``foot_height=0``.)
 """
 
@@ -61,7 +61,8 @@ def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None)
     """What ``o3d_terrain.fit_terrain`` does with its defaults (0.5 m cells, the cloud's
     extent), with FIT_OPTIONS passed to the fit."""
     finite = positions[np.isfinite(positions).all(axis=1)]
-    grid = quantize_points(finite, cell_size=0.5, region=region_of(finite))
+    grid = quantize_points(finite, cell_size=0.5, region=region_of(finite),
+                           plane=bool(FIT_OPTIONS.get("cell_plane")))
     return fit_grid_detailed(grid, method=method, positions=finite, range_noise=range_noise,
                              **FIT_OPTIONS).surface
 
@@ -238,6 +239,8 @@ def main() -> None:
                         help="fit stereo clouds without their noise model (STEREO_RIG)")
     parser.add_argument("--no-object-feet", action="store_true",
                         help="label by height alone (foot_height=0)")
+    parser.add_argument("--cell-plane", action="store_true",
+                        help="fit with cell_plane=True (eq. 1 about each cell's plane)")
     args = parser.parse_args()
     if args.no_object_feet:
         LABEL_OPTIONS["foot_height"] = 0.0
@@ -245,6 +248,8 @@ def main() -> None:
     USE_RANGE_NOISE = not args.no_range_noise
     if args.no_terrain_prior:
         FIT_OPTIONS["terrain_prior"] = False
+    if args.cell_plane:
+        FIT_OPTIONS["cell_plane"] = True
     parts = set(args.only.split(","))
     root = data_root()
     if "synthetic" in parts:

@@ -53,15 +53,16 @@ class GridQuantize(Stage):
                 f"{self.type_name}: {grid.skipped_outside} point(s) outside the region")
         return frame
 
-    def grid(self, positions: np.ndarray, *, region=None, layer: float | None = None
-             ) -> HeightGrid:
+    def grid(self, positions: np.ndarray, *, region=None, layer: float | None = None,
+             plane: bool = False) -> HeightGrid:
         """The grid of :meth:`run` from (N, 3) positions. region: overrides the option (e.g.
         an extent already computed); layer: thickness of the ground-layer statistics
         gathered in the same pass (None = :func:`~o3d_terrain.ground_layer.default_layer`,
-        what RationalBSplineTerrain's defaults use; 0 = none)."""
+        what RationalBSplineTerrain's defaults use; 0 = none); plane: also the cells' planes
+        (RationalBSplineTerrain's cell_plane)."""
         return quantize_points(
             positions, cell_size=self.cell_size,
             region=self.region if region is None else region,
             min_points=self.min_points, fill_empty=self.fill_empty,
-            layer=default_layer(self.cell_size) if layer is None else layer,
+            layer=default_layer(self.cell_size) if layer is None else layer, plane=plane,
         )

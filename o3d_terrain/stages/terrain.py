@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
-from ..grid import HeightGrid
+from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points
@@ -69,6 +69,15 @@ class RationalBSplineTerrain(Stage):
              "under an object (canopy, wall) gives the fit the layer's height instead of "
              "eq. 1's lifted sample (o3d_terrain.ground_layer)",
     )
+    cell_plane: bool = option(
+        False,
+        help="robust method: in cells whose points are all terrain (terrain_prior's compact "
+             "cells; every cell without the prior) eq. 1 about the least-squares plane of the "
+             "points where its tilt is significant (sample = the plane's height at the cell "
+             "centre minus the spread about it), not about their mean, which sits about "
+             "rise / sqrt(12) low on slopes; needs the points (docs/algorithm.md, 'Eq. 1 "
+             "with the in-cell slope removed')",
+    )
 
     range_noise: float = option(
         0.0, unit="1/m", rule=NON_NEGATIVE,
@@ -93,11 +102,14 @@ class RationalBSplineTerrain(Stage):
     def fit(self, grid: HeightGrid, positions: np.ndarray | None = None,
             range_noise: RangeNoise | None = None) -> TerrainFit:
         """The fit of :meth:`run` on a height grid; ``positions`` (the points the grid was
-        made from) give the ground-layer samples and, with a noise model (this stage's
+        made from) give the ground-layer samples, the cells' planes with ``cell_plane`` when
+        the grid was made without them, and, with a noise model (this stage's
         ``range_noise`` option, else ``range_noise``), the per-cell noise. The surface carries
         the grid's cell size."""
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
+        if self.cell_plane and grid.plane_sample is None:
+            grid = with_cell_planes(grid, positions)
         fit = fit_grid_detailed(
             grid, control_points=self.control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
@@ -106,6 +118,7 @@ class RationalBSplineTerrain(Stage):
             max_obstacle_width=self.max_obstacle_width,
             positions=positions if self.ground_layer else None,
             ground_layer=self.ground_layer, range_noise=range_noise,
+            cell_plane=self.cell_plane,
         )
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         return dataclasses.replace(fit, surface=surface)
