@@ -16,7 +16,8 @@ Sources:
   windows with the spinning lidar level and tilted (5, 3) degrees at their centre.
 
 Fits run as ``fit_terrain(positions)`` with its defaults plus ``--option KEY=VALUE`` options of
-``fit_grid_detailed``.
+``fit_grid_detailed`` (``--option cell_plane=False``: eq. 1 about the cell means, the default
+before the cells' planes).
 
 Run: .venv/bin/python benchmarks/bench_slope_bias.py [--only synthetic,dem] [--option K=V]
 """

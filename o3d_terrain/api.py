@@ -142,7 +142,8 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
                           max_slope_deg=terrain.max_slope_deg) \
         if terrain.ground_layer and terrain.method == "robust" else 0.0
     grid = quantize._guard(lambda: quantize.grid(positions, region=extent, layer=layer,
-                                                 plane=terrain.cell_plane))
+                                                 plane=terrain.cell_plane,
+                                                 tilt_spread=terrain.noise_floor))
     return terrain._guard(lambda: terrain.fit(grid, positions)).surface
 
 
@@ -160,7 +161,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
                 sensor_origin: Sequence[float] = (0.0, 0.0, 0.0),
                 max_slope_deg: float = MAX_SLOPE_DEG,
-                cell_plane: bool = False) -> TerrainSurface:
+                cell_plane: bool = True) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -177,9 +178,11 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`
     (e.g. ``RangeNoise.from_stereo(focal_px=..., baseline=..., disparity_noise_px=...)``) or
     its coefficient in 1/m with ``sensor_origin`` (cloud coordinates); None = none (lidar).
-    cell_plane: eq. 1 about each cell's least-squares plane instead of its mean: the sample
-    no longer sits about rise / sqrt(12) below sloped terrain (docs/algorithm.md, "Eq. 1 with
-    the in-cell slope removed").
+    cell_plane: (default; with terrain_prior) in cells whose points are all terrain (the
+    prior's compact cells), eq. 1 about their
+    least-squares plane where it tilts them by more than the noise floor, instead of about
+    their mean, which sits about rise / sqrt(12) below sloped terrain; False = eq. 1
+    everywhere (docs/algorithm.md, "Eq. 1 with the in-cell slope removed").
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
@@ -202,7 +205,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     range_noise: RangeNoise | float | None = None,
                     misfit_threshold: bool = True, along_normal: bool = True,
                     foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG,
-                    cell_plane: bool = False) -> tuple[TerrainSurface, np.ndarray]:
+                    cell_plane: bool = True) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +

@@ -143,13 +143,15 @@ def quantize_points(
     fill_empty: bool = True,
     layer: float = 0.0,
     plane: bool = False,
+    tilt_spread: float = 0.0,
 ) -> HeightGrid:
     """Quantize points into a :class:`HeightGrid` (eq. 1). Non-finite points are skipped.
     ``layer`` > 0: also the ground-layer statistics for that thickness (m) in the same pass
     (used by :func:`o3d_terrain.ground_layer.ground_layer_samples` and
     :func:`~o3d_terrain.ground_layer.overhung_ground_cells` instead of their own).
     ``plane``: also eq. 1 with the in-cell slope removed (``level`` and ``plane_sample``,
-    from each cell's least-squares plane, grade at most 1, where its tilt is significant;
+    from each cell's least-squares plane, grade at most 1, where its tilt is significant and
+    spreads the points' heights by at least ``tilt_spread`` m, root mean square;
     :func:`o3d_terrain._kernels.grid.quantize`), in the same two passes."""
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 2 or positions.shape[1] != 3:
@@ -181,7 +183,7 @@ def quantize_points(
     (height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum,
      layer_above, level, plane_sample) = _grid.quantize(
         positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer,
-        _exact_inverse(cell_size), bool(plane))
+        _exact_inverse(cell_size), bool(plane), 1.0, float(tilt_spread))
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
                       highest, mean, int(nonfinite), int(outside), layer,
                       layer_count if layer else None, layer_sum if layer else None,
@@ -189,10 +191,12 @@ def quantize_points(
                       plane_sample if plane else None)
 
 
-def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None) -> HeightGrid:
-    """``grid`` with the cells' planes (``level``, ``plane_sample``) of ``positions``, the
-    points it was made from, gathered by a second quantization over its cells (its
-    ``plane_sample`` is eq. 1's ``z`` wherever the grid's own cell is not MEASURED)."""
+def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
+                     tilt_spread: float = 0.0) -> HeightGrid:
+    """``grid`` with the cells' planes (``level``, ``plane_sample``; ``tilt_spread`` as in
+    :func:`quantize_points`) of ``positions``, the points it was made from, gathered by a
+    second quantization over its cells (its ``plane_sample`` is eq. 1's ``z`` wherever the
+    grid's own cell is not MEASURED)."""
     if grid.plane_sample is not None and grid.level is not None:
         return grid
     if positions is None:
@@ -200,7 +204,8 @@ def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None) -> HeightGr
                          "from; give the positions")
     x_min, x_max, y_min, y_max = grid.region
     planes = quantize_points(positions, cell_size=grid.cell_size,
-                             region=(x_min, x_max, y_min, y_max), plane=True)
+                             region=(x_min, x_max, y_min, y_max), plane=True,
+                             tilt_spread=tilt_spread)
     if planes.shape != grid.shape:
         raise InputError(f"the points give a {planes.shape} grid over the grid's region "
                          f"{grid.shape}")

@@ -163,14 +163,16 @@ def fit_grid_detailed(
         on, eq. 1 samples discount only the spread the noise does not explain and cells of
         pure noise add their sample's noise to the weights' noise scale
         (:class:`o3d_terrain.noise.GridNoise`); None = one noise scale for the whole grid.
-    cell_plane: (robust) eq. 1 with the in-cell slope removed in the cells whose points are
-        all terrain (the prior's compact cells; every measured cell with ``terrain_prior``
-        False): their sample is the height at the centre of the least-squares plane through
-        their points minus the spread about it (``grid.plane_sample``, from
-        ``quantize_points(plane=True)``; eq. 1 where the tilt is not significant), at least
-        that height minus ``noise_floor``; eq. 1 about the mean sits about rise / sqrt(12)
-        below a sloped cell's terrain (docs/algorithm.md, "Eq. 1 with the in-cell slope
-        removed").
+    cell_plane: (robust, with ``terrain_prior``) eq. 1 with the in-cell slope removed in the
+        cells whose points are all terrain (the prior's compact cells): their sample is the
+        height at the centre of the least-squares plane through their points minus the
+        spread about it (``grid.plane_sample``, from
+        ``quantize_points(plane=True, tilt_spread=noise_floor)`` as fit_terrain and the stage
+        make it; eq. 1 where the tilt is not significant or spreads the points by less than
+        ``tilt_spread``), at least that height minus ``noise_floor``; eq. 1 about the mean
+        sits about rise / sqrt(12) below a sloped cell's terrain (docs/algorithm.md, "Eq. 1
+        with the in-cell slope removed"). False here (a grid made without the planes);
+        fit_terrain, segment_terrain and RationalBSplineTerrain default to True.
     """
     problems = []
     if method not in METHODS:
@@ -248,13 +250,13 @@ def fit_grid_detailed(
                     grid, positions, connected, compact, samples, layer=layer,
                     tolerance=3.0 * noise_floor, spread=spread, widen=0.5 * layer)
             prior = (protected, spread)
-        if cell_plane:
+        if cell_plane and terrain_prior:
             # eq. 1 about the cell's plane where all its points are terrain (the prior's
-            # compact cells; every measured cell without the prior): on a slope eq. 1 about the
-            # mean sits about rise / sqrt(12) low, while in a cell holding an object's foot or
-            # wall the plane would tilt towards the object and lift the sample
-            planar = compact if terrain_prior else measured
-            samples = np.where(planar, grid.plane_sample, samples)
+            # compact cells): on a slope eq. 1 about the mean sits about rise / sqrt(12) low,
+            # while in a cell holding an object's foot or wall the plane would tilt towards
+            # the object and lift the sample (measured: planes in every cell cost a LAS tile
+            # with buildings 12 F1 points; docs/algorithm.md)
+            samples = np.where(compact, grid.plane_sample, samples)
         # samples z - z0 (0 where invalid) and base weights (1 measured, filled_weight filled);
         # with the prior and the grid's mean, compact cells take max(z, mean - noise_floor):
         # all points of a compact cell are terrain, and eq. 1's "- sigma" (meant to discount
@@ -262,7 +264,7 @@ def fit_grid_detailed(
         # (0.29 rise on a plane); subtract at most the sensor's noise floor
         # (with cell_plane: at least the plane's height at the cell centre - noise_floor)
         use_mean = terrain_prior and grid.mean is not None
-        centre = grid.level if cell_plane else grid.mean
+        centre = grid.level if cell_plane and terrain_prior else grid.mean
         z, base = _tk.robust_inputs(
             grid.state, np.ascontiguousarray(samples, dtype=np.float64),
             centre if use_mean else np.zeros((0, 0)), compact if use_mean else

@@ -76,7 +76,7 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
 
 
 def grid_cell_planes(positions, x_min, y_min, cell_size, nx, ny, max_grade=1.0, span=0.05,
-                     min_points=4, significance=4.0):
+                     min_points=4, significance=4.0, tilt_spread=0.0):
     """Eq. 1 with the in-cell slope removed, cell by cell with numpy: (level, plane_sample).
 
     Per cell with at least ``min_points`` points: the least-squares plane through its points
@@ -85,7 +85,8 @@ def grid_cell_planes(positions, x_min, y_min, cell_size, nx, ny, max_grade=1.0, 
     level = the plane at the centre; plane_sample = level + max(lowest residual, -s), s^2 =
     (sum of squared residuals) / (n - 1 - t) (n - 1) / n with t the number of those
     directions, where the tilt's share of the squares per direction is at least
-    ``significance`` times the residuals' per degree of freedom. Other cells
+    ``significance`` times the residuals' per degree of freedom and spreads the heights by at
+    least ``tilt_spread`` (root mean square). Other cells
     with points: level = the mean, plane_sample = eq. 1 (:func:`grid_quantize`)."""
     z_eq1, _, _, _, _, means = grid_quantize(positions, x_min, y_min, cell_size, nx, ny)
     level = np.zeros((nx, ny))
@@ -125,8 +126,9 @@ def grid_cell_planes(positions, x_min, y_min, cell_size, nx, ny, max_grade=1.0, 
             lv = z.mean() - g[0] * u.mean() - g[1] * v.mean()
             r = z - lv - g[0] * u - g[1] * v
             explained = np.sum((g[0] * (u - u.mean()) + g[1] * (v - v.mean())) ** 2)
-            if hat == 0 or explained / hat < significance * np.sum(r * r) / (n - 1 - hat):
-                continue  # the tilt explains no more than noise: the mean and eq. 1
+            if (hat == 0 or explained / hat < significance * np.sum(r * r) / (n - 1 - hat)
+                    or explained < n * tilt_spread**2):
+                continue  # the tilt explains no more than noise, or too little: mean, eq. 1
             s2 = np.sum(r * r) / (n - 1 - hat) * (n - 1) / n
             level[ix, iy] = lv
             sample[ix, iy] = lv + max(r.min(), -math.sqrt(s2))

@@ -150,8 +150,8 @@ def test_save_load_keeps_lowest_highest_and_mean(rng, tmp_path):
         np.testing.assert_array_equal(getattr(back, name), getattr(grid, name))
 
 
-@pytest.mark.parametrize("cell", [0.5, 0.7])
-def test_cell_planes_match_reference(rng, cell):
+@pytest.mark.parametrize("cell,tilt_spread", [(0.5, 0.0), (0.7, 0.0), (0.5, 0.03)])
+def test_cell_planes_match_reference(rng, cell, tilt_spread):
     """Eq. 1 with the in-cell slope removed: the kernel's sums in the grid's two passes give
     the plane a plain per-cell least-squares fit gives (tilted planes, steep ones capped,
     noise, cells of every count, points on one line)."""
@@ -168,9 +168,10 @@ def test_cell_planes_match_reference(rng, cell):
     line[:, 2] = 0.5 * line[:, 0]
     pts = np.r_[np.c_[xy, z], line]
     pts[::101] = np.nan
-    grid = quantize_points(pts, cell_size=cell, region=(0, 6, 0, 6), plane=True)
+    grid = quantize_points(pts, cell_size=cell, region=(0, 6, 0, 6), plane=True,
+                           tilt_spread=tilt_spread)
     level, sample = grid_cell_planes(pts, 0.0, 0.0, cell, grid.nx, grid.ny,
-                                     min_points=PLANE_MIN_POINTS)
+                                     min_points=PLANE_MIN_POINTS, tilt_spread=tilt_spread)
     has = grid.count > 0
     np.testing.assert_allclose(grid.level[has], level[has], rtol=0, atol=1e-9)
     np.testing.assert_allclose(grid.plane_sample[grid.valid], sample[grid.valid], rtol=0,

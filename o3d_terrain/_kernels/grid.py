@@ -130,7 +130,7 @@ def _cell_plane(n, mean, su, sv, suu, svv, suv, suz, svz, cell_size, max_grade):
 
 @numba.njit(cache=True)
 def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0,
-             inverse=0.0, plane=False, max_grade=1.0):
+             inverse=0.0, plane=False, max_grade=1.0, tilt_spread=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
     and mean z of the rows (x, y, z) of an (N, 3) array (read in place); with ``layer`` > 0
     also the number and the sum of the z values within [lowest, lowest + layer] per cell and
@@ -140,9 +140,10 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     (:func:`_cell_plane`): per cell the height at the cell's centre of the least-squares
     plane through its points (``level``) and the sample level + max(lowest residual, -s)
     (``plane_sample``), s the residuals' spread with the plane's degrees of freedom given
-    back; the cell's mean and Z where it has fewer than :data:`PLANE_MIN_POINTS` points or the
-    tilt fails the F test of :data:`PLANE_SIGNIFICANCE`. From sums gathered in the same two
-    passes over the points (empty arrays otherwise).
+    back; the cell's mean and Z where it has fewer than :data:`PLANE_MIN_POINTS` points, the
+    tilt fails the F test of :data:`PLANE_SIGNIFICANCE` or it spreads the points' heights by
+    less than ``tilt_spread`` (m, root mean square over the points). From sums gathered in the
+    same two passes over the points (empty arrays otherwise).
 
     Each point's cell is :func:`_cell`, found in the first pass over the points and kept for
     the second (no separate pass). ``inverse`` > 0 must be exactly 1 / cell_size (a power of
@@ -279,8 +280,10 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         k = count[c]
         if state[c] == MEASURED and k >= PLANE_MIN_POINTS and tilts[c] > 0:
             # the plane's tilt must explain more of the spread than the noise would (an F test
-            # of the slopes): on level ground a tilt fitted to noise or to the relief of grass
-            # would only lift the sample; there the plane is the mean and the sample eq. 1's
+            # of the slopes) and spread the heights by at least tilt_spread: on level or gently
+            # sloping ground a tilt fitted to noise or to the relief of grass would only lift
+            # the sample, and eq. 1's bias (at most the tilt's spread) stays within the noise
+            # the fit allows for; there the plane is the mean and the sample eq. 1's
             inv = 1.0 / k
             mu = su[c] * inv
             mv = sv[c] * inv
@@ -290,7 +293,8 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
                              + 2.0 * gx * gy * (suv[c] * inv - mu * mv)
                              + gy * gy * (svv[c] * inv - mv * mv))
             if (explained / tilts[c] * (k - 1.0 - tilts[c])
-                    < PLANE_SIGNIFICANCE * residual_squares[c]):
+                    < PLANE_SIGNIFICANCE * residual_squares[c]
+                    or explained < k * tilt_spread * tilt_spread):
                 tilts[c] = 0.0
                 level[c] = mean[c]
         if state[c] == MEASURED and k >= PLANE_MIN_POINTS and tilts[c] > 0:

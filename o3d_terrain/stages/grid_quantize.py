@@ -54,15 +54,16 @@ class GridQuantize(Stage):
         return frame
 
     def grid(self, positions: np.ndarray, *, region=None, layer: float | None = None,
-             plane: bool = False) -> HeightGrid:
+             plane: bool = False, tilt_spread: float = 0.0) -> HeightGrid:
         """The grid of :meth:`run` from (N, 3) positions. region: overrides the option (e.g.
         an extent already computed); layer: thickness of the ground-layer statistics
         gathered in the same pass (None = :func:`~o3d_terrain.ground_layer.default_layer`,
-        what RationalBSplineTerrain's defaults use; 0 = none); plane: also the cells' planes
-        (RationalBSplineTerrain's cell_plane)."""
+        what RationalBSplineTerrain's defaults use; 0 = none); plane, tilt_spread: also the
+        cells' planes (RationalBSplineTerrain's cell_plane, :func:`quantize_points`)."""
         return quantize_points(
             positions, cell_size=self.cell_size,
             region=self.region if region is None else region,
             min_points=self.min_points, fill_empty=self.fill_empty,
             layer=default_layer(self.cell_size) if layer is None else layer, plane=plane,
+            tilt_spread=tilt_spread,
         )

@@ -70,13 +70,14 @@ class RationalBSplineTerrain(Stage):
              "eq. 1's lifted sample (o3d_terrain.ground_layer)",
     )
     cell_plane: bool = option(
-        False,
-        help="robust method: in cells whose points are all terrain (terrain_prior's compact "
-             "cells; every cell without the prior) eq. 1 about the least-squares plane of the "
-             "points where its tilt is significant (sample = the plane's height at the cell "
-             "centre minus the spread about it), not about their mean, which sits about "
-             "rise / sqrt(12) low on slopes; needs the points (docs/algorithm.md, 'Eq. 1 "
-             "with the in-cell slope removed')",
+        True,
+        help="robust method with terrain_prior: in cells whose points are all terrain (the "
+             "prior's compact cells) eq. 1 about the least-squares plane of the "
+             "points where its tilt is significant and spreads them by more than noise_floor "
+             "(sample = the plane's height at the cell centre minus the spread about it), not "
+             "about their mean, which sits about rise / sqrt(12) low on slopes; needs the "
+             "points; false = eq. 1 everywhere (docs/algorithm.md, 'Eq. 1 with the in-cell "
+             "slope removed')",
     )
 
     range_noise: float = option(
@@ -109,7 +110,7 @@ class RationalBSplineTerrain(Stage):
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
         if self.cell_plane and grid.plane_sample is None:
-            grid = with_cell_planes(grid, positions)
+            grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         fit = fit_grid_detailed(
             grid, control_points=self.control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
