@@ -51,6 +51,7 @@ class HeightGrid:
     # more points whose plane's tilt is significant (elsewhere the mean and z)
     level: np.ndarray | None = None
     plane_sample: np.ndarray | None = None
+    tilt_spread: float | None = None  # the tilt_spread the planes were made with (m)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -188,7 +189,8 @@ def quantize_points(
                       highest, mean, int(nonfinite), int(outside), layer,
                       layer_count if layer else None, layer_sum if layer else None,
                       layer_above if layer else None, level if plane else None,
-                      plane_sample if plane else None)
+                      plane_sample if plane else None,
+                      float(tilt_spread) if plane else None)
 
 
 def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
@@ -197,7 +199,8 @@ def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
     :func:`quantize_points`) of ``positions``, the points it was made from, gathered by a
     second quantization over its cells (its ``plane_sample`` is eq. 1's ``z`` wherever the
     grid's own cell is not MEASURED)."""
-    if grid.plane_sample is not None and grid.level is not None:
+    if (grid.plane_sample is not None and grid.level is not None
+            and grid.tilt_spread == tilt_spread):
         return grid
     if positions is None:
         raise InputError("the cells' planes (cell_plane) need the points the grid was made "
@@ -212,5 +215,6 @@ def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
     usable = (grid.state == MEASURED) & (planes.state == MEASURED)
     return replace(grid, level=np.where(usable, planes.level, grid.mean if grid.mean is not
                                         None else grid.z),
-                   plane_sample=np.where(usable, planes.plane_sample, grid.z))
+                   plane_sample=np.where(usable, planes.plane_sample, grid.z),
+                   tilt_spread=float(tilt_spread))
 

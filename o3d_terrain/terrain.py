@@ -34,7 +34,8 @@ from .spline import GridBasis, TerrainSurface
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "terrain_prior_mask", "METHODS", "MAX_SLOPE_DEG"]
+           "default_control_points", "terrain_prior_mask", "METHODS", "MAX_SLOPE_DEG",
+           "NOISE_FLOOR"]
 
 METHODS = ("robust", "paper")
 
@@ -42,6 +43,10 @@ METHODS = ("robust", "paper")
 #: and not terrain; raising it lets bench faces of pits and cuttings be terrain but connects
 #: the walls of cars and buildings to the ground (docs/algorithm.md, "Steep faces")
 MAX_SLOPE_DEG = 45.0
+
+#: smallest noise threshold of the robust weights (m); also the least height spread a cell's
+#: plane must give its points to replace eq. 1 (``cell_plane``)
+NOISE_FLOOR = 0.03
 
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
@@ -113,7 +118,7 @@ def fit_grid_detailed(
     degree: int = 3,
     method: str = "robust",
     smoothing: float = 0.05,
-    noise_floor: float = 0.03,
+    noise_floor: float = NOISE_FLOOR,
     filled_weight: float = 0.3,
     rational: bool = True,
     max_iterations: int = 30,

@@ -406,3 +406,22 @@ def test_cell_plane_needs_the_planes_and_reaches_the_stage_and_api(rng):
     np.testing.assert_array_equal(from_array.control_points, from_frame.control_points)
     assert not np.array_equal(from_array.control_points,
                               fit_terrain(positions, cell_plane=False).control_points)
+
+
+def test_grid_stage_gathers_the_planes_the_fit_defaults_read(rng):
+    from o3d_terrain.grid import with_cell_planes
+    from o3d_terrain.stages.grid_quantize import GridQuantize
+    from o3d_terrain.terrain import NOISE_FLOOR
+
+    xy = rng.uniform(0, 8, size=(6000, 2))
+    positions = np.column_stack([xy, 0.5 * xy[:, 0] + rng.normal(0, 0.01, len(xy))])
+    grid = GridQuantize().grid(positions)
+    assert grid.plane_sample is not None and grid.tilt_spread == NOISE_FLOOR
+    assert with_cell_planes(grid, None, tilt_spread=NOISE_FLOOR) is grid  # no second pass
+    other = with_cell_planes(grid, positions, tilt_spread=0.1)  # another noise floor: redone
+    direct = quantize_points(positions, cell_size=0.5, region=grid.region, plane=True,
+                             tilt_spread=0.1)
+    np.testing.assert_array_equal(other.plane_sample, direct.plane_sample)
+    assert other.tilt_spread == 0.1
+    with pytest.raises(InputError, match="need the points"):
+        with_cell_planes(quantize_points(positions, cell_size=0.5), None)

@@ -11,7 +11,7 @@ from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points
-from ..terrain import MAX_SLOPE_DEG, METHODS, TerrainFit, fit_grid_detailed
+from ..terrain import MAX_SLOPE_DEG, METHODS, NOISE_FLOOR, TerrainFit, fit_grid_detailed
 from .base import Stage, stage
 
 
@@ -47,7 +47,7 @@ class RationalBSplineTerrain(Stage):
     smoothing: float = option(0.05, rule=NON_NEGATIVE,
                               help="thin-plate penalty relative to the data weight per control "
                                    "point; keeps areas without data bounded")
-    noise_floor: float = option(0.03, unit="m", rule=NON_NEGATIVE,
+    noise_floor: float = option(NOISE_FLOOR, unit="m", rule=NON_NEGATIVE,
                                 help="smallest noise threshold of the robust weights")
     rational: bool = option(True, help="derive control-point weights R from the sample weights")
     terrain_prior: bool = option(
@@ -109,7 +109,8 @@ class RationalBSplineTerrain(Stage):
         the grid's cell size."""
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
-        if self.cell_plane and grid.plane_sample is None:
+        if self.cell_plane and (grid.plane_sample is None
+                                or grid.tilt_spread != self.noise_floor):
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         fit = fit_grid_detailed(
             grid, control_points=self.control_points, degree=self.degree,
