@@ -204,7 +204,7 @@ def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
         return grid
     if positions is None:
         raise InputError("the cells' planes (cell_plane) need the points the grid was made "
-                         "from; give the positions")
+                         "from; give the positions, or set cell_plane to false")
     x_min, x_max, y_min, y_max = grid.region
     planes = quantize_points(positions, cell_size=grid.cell_size,
                              region=(x_min, x_max, y_min, y_max), plane=True,
