@@ -21,7 +21,7 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt,lidar16]
-     [--no-terrain-prior] [--no-range-noise] [--no-object-feet]
+     [--no-terrain-prior] [--no-range-noise] [--no-object-feet] [--no-cell-plane]
 (``--no-object-feet``: label by height alone, ``foot_height=0``.)
 """
 
@@ -45,8 +45,9 @@ from o3d_terrain.noise import RangeNoise  # noqa: E402
 from o3d_terrain.segment import TerrainLabel, segment_points  # noqa: E402
 from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
 
-#: keyword options of fit_grid_detailed for every fit (set from the command line)
-FIT_OPTIONS: dict = {}
+#: keyword options of fit_grid_detailed for every fit (set from the command line); cell_plane
+#: as fit_terrain's default
+FIT_OPTIONS: dict = {"cell_plane": True}
 
 #: keyword options of segment_points for every labelling (set from the command line)
 LABEL_OPTIONS: dict = {}
@@ -63,7 +64,9 @@ def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None)
     """What ``o3d_terrain.fit_terrain`` does with its defaults (0.5 m cells, the cloud's
     extent), with FIT_OPTIONS passed to the fit."""
     finite = positions[np.isfinite(positions).all(axis=1)]
-    grid = quantize_points(finite, cell_size=0.5, region=region_of(finite))
+    grid = quantize_points(finite, cell_size=0.5, region=region_of(finite),
+                           plane=bool(FIT_OPTIONS.get("cell_plane")),
+                           tilt_spread=FIT_OPTIONS.get("noise_floor", 0.03))
     return fit_grid_detailed(grid, method=method, positions=finite, range_noise=range_noise,
                              **FIT_OPTIONS).surface
 
@@ -248,6 +251,8 @@ def main() -> None:
                         help="fit stereo clouds without their noise model (STEREO_RIG)")
     parser.add_argument("--no-object-feet", action="store_true",
                         help="label by height alone (foot_height=0)")
+    parser.add_argument("--no-cell-plane", action="store_true",
+                        help="fit with cell_plane=False (eq. 1 about the cell means everywhere)")
     args = parser.parse_args()
     if args.no_object_feet:
         LABEL_OPTIONS["foot_height"] = 0.0
@@ -255,6 +260,8 @@ def main() -> None:
     USE_RANGE_NOISE = not args.no_range_noise
     if args.no_terrain_prior:
         FIT_OPTIONS["terrain_prior"] = False
+    if args.no_cell_plane:
+        FIT_OPTIONS["cell_plane"] = False
     parts = set(args.only.split(","))
     root = data_root()
     sensors = args.sensors.split(",")

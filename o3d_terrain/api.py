@@ -87,7 +87,7 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
-                    terrain_prior, range_noise, sensor_origin, max_slope_deg):
+                    terrain_prior, range_noise, sensor_origin, max_slope_deg, cell_plane):
     """The GridQuantize and RationalBSplineTerrain stages of the api's options (cached)."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
@@ -100,7 +100,8 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
     terrain = _build(RationalBSplineTerrain,
                      control_points=None if control_points is None else tuple(control_points),
                      degree=degree, method=method, smoothing=smoothing,
-                     terrain_prior=terrain_prior, max_slope_deg=max_slope_deg, **noise)
+                     terrain_prior=terrain_prior, max_slope_deg=max_slope_deg,
+                     cell_plane=cell_plane, **noise)
     return quantize, terrain
 
 
@@ -140,7 +141,9 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
     layer = default_layer(quantize.cell_size, noise_floor=terrain.noise_floor,
                           max_slope_deg=terrain.max_slope_deg) \
         if terrain.ground_layer and terrain.method == "robust" else 0.0
-    grid = quantize._guard(lambda: quantize.grid(positions, region=extent, layer=layer))
+    grid = quantize._guard(lambda: quantize.grid(positions, region=extent, layer=layer,
+                                                 plane=terrain.cell_plane,
+                                                 tilt_spread=terrain.noise_floor))
     return terrain._guard(lambda: terrain.fit(grid, positions)).surface
 
 
@@ -158,7 +161,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 method: str = "robust", smoothing: float = 0.05,
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
                 sensor_origin: Sequence[float] = (0.0, 0.0, 0.0),
-                max_slope_deg: float = MAX_SLOPE_DEG) -> TerrainSurface:
+                max_slope_deg: float = MAX_SLOPE_DEG,
+                cell_plane: bool = True) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -175,13 +179,18 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`
     (e.g. ``RangeNoise.from_stereo(focal_px=..., baseline=..., disparity_noise_px=...)``) or
     its coefficient in 1/m with ``sensor_origin`` (cloud coordinates); None = none (lidar).
+    cell_plane: (default; with terrain_prior) in cells whose points are all terrain (the
+    prior's compact cells), eq. 1 about their
+    least-squares plane where it tilts them by more than the noise floor, instead of about
+    their mean, which sits about rise / sqrt(12) below sloped terrain; False = eq. 1
+    everywhere (docs/algorithm.md, "Eq. 1 with the in-cell slope removed").
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, sensor_origin,
-                                        max_slope_deg)
+                                        max_slope_deg, cell_plane)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         return _array_fit(positions, quantize, terrain)
@@ -196,8 +205,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     smoothing: float = 0.05, terrain_prior: bool = True,
                     range_noise: RangeNoise | float | None = None,
                     misfit_threshold: bool = True, along_normal: bool = True,
-                    foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG
-                    ) -> tuple[TerrainSurface, np.ndarray]:
+                    foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG,
+                    cell_plane: bool = True) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -223,7 +232,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                        foot_height=foot_height)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
-                                        max_slope_deg)
+                                        max_slope_deg, cell_plane)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         surface = _array_fit(positions, quantize, terrain)

@@ -7,7 +7,7 @@ Arrays are indexed ``[ix, iy]`` (x first, shape ``(nx, ny)``), like the spline's
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,13 @@ class HeightGrid:
     layer_count: np.ndarray | None = None
     layer_sum: np.ndarray | None = None
     layer_above: np.ndarray | None = None
+    # eq. 1 with the in-cell slope removed (quantize_points(plane=True)): the height at the
+    # cell's centre of the least-squares plane through its points, and that height plus
+    # max(lowest residual, -sigma of the residuals about the plane) on MEASURED cells of 4 or
+    # more points whose plane's tilt is significant (elsewhere the mean and z)
+    level: np.ndarray | None = None
+    plane_sample: np.ndarray | None = None
+    tilt_spread: float | None = None  # the tilt_spread the planes were made with (m)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -136,11 +143,17 @@ def quantize_points(
     min_points: int = 1,
     fill_empty: bool = True,
     layer: float = 0.0,
+    plane: bool = False,
+    tilt_spread: float = 0.0,
 ) -> HeightGrid:
     """Quantize points into a :class:`HeightGrid` (eq. 1). Non-finite points are skipped.
     ``layer`` > 0: also the ground-layer statistics for that thickness (m) in the same pass
     (used by :func:`o3d_terrain.ground_layer.ground_layer_samples` and
-    :func:`~o3d_terrain.ground_layer.overhung_ground_cells` instead of their own)."""
+    :func:`~o3d_terrain.ground_layer.overhung_ground_cells` instead of their own).
+    ``plane``: also eq. 1 with the in-cell slope removed (``level`` and ``plane_sample``,
+    from each cell's least-squares plane, grade at most 1, where its tilt is significant and
+    spreads the points' heights by at least ``tilt_spread`` m, root mean square;
+    :func:`o3d_terrain._kernels.grid.quantize`), in the same two passes."""
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise InputError(f"positions must be (N, 3), got {positions.shape}")
@@ -169,9 +182,39 @@ def quantize_points(
         raise InputError(f"layer must be a finite number of metres >= 0, got {layer!r}")
     layer = float(layer)
     (height, count, state, lowest, highest, mean, nonfinite, outside, layer_count, layer_sum,
-     layer_above) = _grid.quantize(positions, x_min, y_min, cell_size, nx, ny, min_points,
-                                   fill_empty, layer, _exact_inverse(cell_size))
+     layer_above, level, plane_sample) = _grid.quantize(
+        positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer,
+        _exact_inverse(cell_size), bool(plane), 1.0, float(tilt_spread))
     return HeightGrid(float(x_min), float(y_min), float(cell_size), height, count, state, lowest,
                       highest, mean, int(nonfinite), int(outside), layer,
                       layer_count if layer else None, layer_sum if layer else None,
-                      layer_above if layer else None)
+                      layer_above if layer else None, level if plane else None,
+                      plane_sample if plane else None,
+                      float(tilt_spread) if plane else None)
+
+
+def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
+                     tilt_spread: float = 0.0) -> HeightGrid:
+    """``grid`` with the cells' planes (``level``, ``plane_sample``; ``tilt_spread`` as in
+    :func:`quantize_points`) of ``positions``, the points it was made from, gathered by a
+    second quantization over its cells (its ``plane_sample`` is eq. 1's ``z`` wherever the
+    grid's own cell is not MEASURED)."""
+    if (grid.plane_sample is not None and grid.level is not None
+            and grid.tilt_spread == tilt_spread):
+        return grid
+    if positions is None:
+        raise InputError("the cells' planes (cell_plane) need the points the grid was made "
+                         "from; give the positions, or set cell_plane to false")
+    x_min, x_max, y_min, y_max = grid.region
+    planes = quantize_points(positions, cell_size=grid.cell_size,
+                             region=(x_min, x_max, y_min, y_max), plane=True,
+                             tilt_spread=tilt_spread)
+    if planes.shape != grid.shape:
+        raise InputError(f"the points give a {planes.shape} grid over the grid's region "
+                         f"{grid.shape}")
+    usable = (grid.state == MEASURED) & (planes.state == MEASURED)
+    return replace(grid, level=np.where(usable, planes.level, grid.mean if grid.mean is not
+                                        None else grid.z),
+                   plane_sample=np.where(usable, planes.plane_sample, grid.z),
+                   tilt_spread=float(tilt_spread))
+

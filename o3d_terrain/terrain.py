@@ -34,7 +34,8 @@ from .spline import GridBasis, TerrainSurface
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "terrain_prior_mask", "METHODS", "MAX_SLOPE_DEG"]
+           "default_control_points", "terrain_prior_mask", "METHODS", "MAX_SLOPE_DEG",
+           "NOISE_FLOOR"]
 
 METHODS = ("robust", "paper")
 
@@ -42,6 +43,10 @@ METHODS = ("robust", "paper")
 #: and not terrain; raising it lets bench faces of pits and cuttings be terrain but connects
 #: the walls of cars and buildings to the ground (docs/algorithm.md, "Steep faces")
 MAX_SLOPE_DEG = 45.0
+
+#: smallest noise threshold of the robust weights (m); also the least height spread a cell's
+#: plane must give its points to replace eq. 1 (``cell_plane``)
+NOISE_FLOOR = 0.03
 
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
@@ -113,7 +118,7 @@ def fit_grid_detailed(
     degree: int = 3,
     method: str = "robust",
     smoothing: float = 0.05,
-    noise_floor: float = 0.03,
+    noise_floor: float = NOISE_FLOOR,
     filled_weight: float = 0.3,
     rational: bool = True,
     max_iterations: int = 30,
@@ -124,6 +129,7 @@ def fit_grid_detailed(
     positions: np.ndarray | None = None,
     ground_layer: bool = True,
     range_noise: RangeNoise | None = None,
+    cell_plane: bool = False,
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -162,6 +168,16 @@ def fit_grid_detailed(
         on, eq. 1 samples discount only the spread the noise does not explain and cells of
         pure noise add their sample's noise to the weights' noise scale
         (:class:`o3d_terrain.noise.GridNoise`); None = one noise scale for the whole grid.
+    cell_plane: (robust, with ``terrain_prior``) eq. 1 with the in-cell slope removed in the
+        cells whose points are all terrain (the prior's compact cells): their sample is the
+        height at the centre of the least-squares plane through their points minus the
+        spread about it (``grid.plane_sample``, from
+        ``quantize_points(plane=True, tilt_spread=noise_floor)`` as fit_terrain and the stage
+        make it; eq. 1 where the tilt is not significant or spreads the points by less than
+        ``tilt_spread``), at least that height minus ``noise_floor``; eq. 1 about the mean
+        sits about rise / sqrt(12) below a sloped cell's terrain (docs/algorithm.md, "Eq. 1
+        with the in-cell slope removed"). False here (a grid made without the planes);
+        fit_terrain, segment_terrain and RationalBSplineTerrain default to True.
     """
     problems = []
     if method not in METHODS:
@@ -181,6 +197,10 @@ def fit_grid_detailed(
     degree = int(degree)
     if not isinstance(grid, HeightGrid):
         raise InputError(f"fit_grid needs a HeightGrid, got {type(grid).__name__}")
+    cell_plane = bool(cell_plane) and method == "robust"
+    if cell_plane and (grid.plane_sample is None or grid.level is None):
+        raise InputError("fit_grid: cell_plane needs a grid made with the cells' planes "
+                         "(quantize_points(..., plane=True))")
     valid = grid.state != 0
     measured = grid.state == MEASURED
     needed = degree + 1
@@ -235,15 +255,24 @@ def fit_grid_detailed(
                     grid, positions, connected, compact, samples, layer=layer,
                     tolerance=3.0 * noise_floor, spread=spread, widen=0.5 * layer)
             prior = (protected, spread)
+        if cell_plane and terrain_prior:
+            # eq. 1 about the cell's plane where all its points are terrain (the prior's
+            # compact cells): on a slope eq. 1 about the mean sits about rise / sqrt(12) low,
+            # while in a cell holding an object's foot or wall the plane would tilt towards
+            # the object and lift the sample (measured: planes in every cell cost a LAS tile
+            # with buildings 12 F1 points; docs/algorithm.md)
+            samples = np.where(compact, grid.plane_sample, samples)
         # samples z - z0 (0 where invalid) and base weights (1 measured, filled_weight filled);
         # with the prior and the grid's mean, compact cells take max(z, mean - noise_floor):
         # all points of a compact cell are terrain, and eq. 1's "- sigma" (meant to discount
         # obstacle points) would only lower the sample by the terrain's relief inside the cell
         # (0.29 rise on a plane); subtract at most the sensor's noise floor
+        # (with cell_plane: at least the plane's height at the cell centre - noise_floor)
         use_mean = terrain_prior and grid.mean is not None
+        centre = grid.level if cell_plane and terrain_prior else grid.mean
         z, base = _tk.robust_inputs(
             grid.state, np.ascontiguousarray(samples, dtype=np.float64),
-            grid.mean if use_mean else np.zeros((0, 0)), compact if use_mean else
+            centre if use_mean else np.zeros((0, 0)), compact if use_mean else
             np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
         with one_blas_thread():  # small banded solves: BLAS threads cost more than they give
             fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree,

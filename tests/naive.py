@@ -75,6 +75,66 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
     return height, count, state, lowest, highest, means
 
 
+def grid_cell_planes(positions, x_min, y_min, cell_size, nx, ny, max_grade=1.0, span=0.05,
+                     min_points=4, significance=4.0, tilt_spread=0.0):
+    """Eq. 1 with the in-cell slope removed, cell by cell with numpy: (level, plane_sample).
+
+    Per cell with at least ``min_points`` points: the least-squares plane through its points
+    (offsets u, v from the cell centre), tilted only along the eigenvectors of the (u, v)
+    covariance whose eigenvalue is at least (span cell)^2, grade capped at ``max_grade``;
+    level = the plane at the centre; plane_sample = level + max(lowest residual, -s), s^2 =
+    (sum of squared residuals) / (n - 1 - t) (n - 1) / n with t the number of those
+    directions, where the tilt's share of the squares per direction is at least
+    ``significance`` times the residuals' per degree of freedom and spreads the heights by at
+    least ``tilt_spread`` (root mean square). Other cells
+    with points: level = the mean, plane_sample = eq. 1 (:func:`grid_quantize`)."""
+    z_eq1, _, _, _, _, means = grid_quantize(positions, x_min, y_min, cell_size, nx, ny)
+    level = np.zeros((nx, ny))
+    sample = z_eq1.copy()
+    members = [[[] for _ in range(ny)] for _ in range(nx)]
+    for x, y, z in positions:
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            continue
+        ix, iy = math.floor((x - x_min) / cell_size), math.floor((y - y_min) / cell_size)
+        ix, iy = min(ix, nx - 1) if ix == nx else ix, min(iy, ny - 1) if iy == ny else iy
+        if 0 <= ix < nx and 0 <= iy < ny:
+            members[ix][iy].append((x - x_min - (ix + 0.5) * cell_size,
+                                    y - y_min - (iy + 0.5) * cell_size, z))
+    for ix in range(nx):
+        for iy in range(ny):
+            pts = np.array(members[ix][iy]).reshape(-1, 3)
+            n = len(pts)
+            if n == 0:
+                continue
+            level[ix, iy] = means[ix, iy]
+            if n < min_points:
+                continue
+            u, v, z = pts[:, 0], pts[:, 1], pts[:, 2]
+            c = np.cov(np.stack([u, v]), bias=True)
+            b = np.array([np.mean((u - u.mean()) * (z - z.mean())),
+                          np.mean((v - v.mean()) * (z - z.mean()))])
+            values, vectors = np.linalg.eigh(c)
+            g = np.zeros(2)
+            hat = 0
+            for k in range(2):  # least squares along the principal directions spanned
+                if values[k] >= (span * cell_size) ** 2:
+                    e = vectors[:, k]
+                    g += e * (e @ b) / values[k]
+                    hat += 1
+            if np.hypot(*g) > max_grade:
+                g = g * max_grade / np.hypot(*g)
+            lv = z.mean() - g[0] * u.mean() - g[1] * v.mean()
+            r = z - lv - g[0] * u - g[1] * v
+            explained = np.sum((g[0] * (u - u.mean()) + g[1] * (v - v.mean())) ** 2)
+            if (hat == 0 or explained / hat < significance * np.sum(r * r) / (n - 1 - hat)
+                    or explained < n * tilt_spread**2):
+                continue  # the tilt explains no more than noise, or too little: mean, eq. 1
+            s2 = np.sum(r * r) / (n - 1 - hat) * (n - 1) / n
+            level[ix, iy] = lv
+            sample[ix, iy] = lv + max(r.min(), -math.sqrt(s2))
+    return level, sample
+
+
 def grid_layer_statistics(positions, x_min, y_min, cell_size, nx, ny, layer):
     """The ground-layer statistics of the grid's pass with plain Python loops: per cell the
     number and the sum (in point order) of the z values within [lowest, lowest + layer] and

@@ -148,3 +148,56 @@ def test_save_load_keeps_lowest_highest_and_mean(rng, tmp_path):
     back = HeightGrid.load(tmp_path / "g.npz")
     for name in ("z", "count", "state", "lowest", "highest", "mean"):
         np.testing.assert_array_equal(getattr(back, name), getattr(grid, name))
+
+
+@pytest.mark.parametrize("cell,tilt_spread", [(0.5, 0.0), (0.7, 0.0), (0.5, 0.03)])
+def test_cell_planes_match_reference(rng, cell, tilt_spread):
+    """Eq. 1 with the in-cell slope removed: the kernel's sums in the grid's two passes give
+    the plane a plain per-cell least-squares fit gives (tilted planes, steep ones capped,
+    noise, cells of every count, points on one line)."""
+    from naive import grid_cell_planes
+
+    from o3d_terrain._kernels.grid import PLANE_MIN_POINTS
+
+    xy = rng.uniform(0, 6, (1500, 2))
+    z = 0.4 * xy[:, 0] - 0.9 * xy[:, 1] + np.where(xy[:, 0] > 4, 1.5 * xy[:, 0], 0.0)
+    z = z + rng.normal(0, 0.02, len(z)) + np.where(rng.random(len(z)) < 0.05, 1.0, 0.0)
+    level_ground = xy[:, 1] > 4.5  # noise only: tilts that do not pass the F test
+    z[level_ground] = rng.normal(0, 0.05, level_ground.sum())
+    line = np.c_[np.linspace(0.01, 5.99, 120), np.full(120, 3.3), np.zeros(120)]
+    line[:, 2] = 0.5 * line[:, 0]
+    pts = np.r_[np.c_[xy, z], line]
+    pts[::101] = np.nan
+    grid = quantize_points(pts, cell_size=cell, region=(0, 6, 0, 6), plane=True,
+                           tilt_spread=tilt_spread)
+    level, sample = grid_cell_planes(pts, 0.0, 0.0, cell, grid.nx, grid.ny,
+                                     min_points=PLANE_MIN_POINTS, tilt_spread=tilt_spread)
+    has = grid.count > 0
+    np.testing.assert_allclose(grid.level[has], level[has], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(grid.plane_sample[grid.valid], sample[grid.valid], rtol=0,
+                               atol=1e-9)
+    dense = grid.valid & (grid.count >= PLANE_MIN_POINTS)
+    kept = dense & (grid.plane_sample == grid.z) & (grid.level == grid.mean)
+    assert kept.sum() >= 5 and (dense & ~kept).sum() >= 20  # both sides of the F test
+    plain = quantize_points(pts, cell_size=cell, region=(0, 6, 0, 6))
+    np.testing.assert_array_equal(grid.z, plain.z)  # eq. 1 itself is unchanged
+    assert plain.level is None and plain.plane_sample is None
+
+
+def test_cell_plane_sample_on_a_slope():
+    """A dense cell on a 30 degree plane: eq. 1 sits rise / sqrt(12) low (points spread evenly),
+    the plane's sample is the plane's height at the cell centre; points on one line through
+    the cell (a single scan ring) give the line's height there, not a tilt across it."""
+    g = np.tan(np.radians(30.0))
+    u = (np.arange(20) + 0.5) / 20
+    x, y = np.meshgrid(u, u, indexing="ij")
+    pts = np.c_[x.ravel(), y.ravel(), g * x.ravel() + 0.1 * y.ravel()]
+    grid = quantize_points(pts, cell_size=1.0, region=(0, 1, 0, 1), plane=True)
+    centre = g * 0.5 + 0.05
+    rise = np.hypot(g, 0.1)  # the plane's rise across the 1 m cell, along its gradient
+    assert grid.z[0, 0] == pytest.approx(centre - rise / np.sqrt(12), abs=0.01)
+    assert grid.level[0, 0] == pytest.approx(centre, abs=1e-9)
+    assert grid.plane_sample[0, 0] == pytest.approx(centre, abs=1e-9)
+    ring = np.c_[u, np.full(20, 0.2), g * u + 0.02]  # along x at y = 0.2, 0.3 off the centre
+    grid = quantize_points(ring, cell_size=1.0, region=(0, 1, 0, 1), plane=True)
+    assert grid.plane_sample[0, 0] == pytest.approx(g * 0.5 + 0.02, abs=1e-9)

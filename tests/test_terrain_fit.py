@@ -366,3 +366,81 @@ def test_default_fit_follows_a_steep_ramp_that_plain_robust_weights_reject():
         err = surface(p[terrain, 0], p[terrain, 1]) - truth
         rmse[prior] = np.sqrt(np.nanmean(err ** 2))
     assert rmse[True] < 0.05 < 0.1 < rmse[False]
+
+
+def test_cell_plane_fits_a_dense_30_degree_plane_without_the_slope_bias(rng):
+    # eq. 1 about the cell mean sits rise / sqrt(12) (0.083 m) low on a 30 deg plane of 0.5 m
+    # cells, max(eq. 1, mean - noise_floor) in the prior's compact cells noise_floor (0.03 m)
+    # low; eq. 1 about each cell's plane has nothing left to discount on noise-free points.
+    # Without the prior nothing says which cells hold terrain only: eq. 1 everywhere
+    slope = np.tan(np.radians(30.0))
+    xy = rng.uniform([0, -6], [12, 6], size=(24 * 24 * 16, 2))
+    positions = np.column_stack([xy, slope * xy[:, 0] + 0.1 * xy[:, 1]])
+    grid = quantize_points(positions, cell_size=0.5, plane=True, tilt_spread=0.03)
+    x, y = np.meshgrid(np.linspace(1.5, 10.5, 37), np.linspace(-4.5, 4.5, 37))
+    truth = (slope * x + 0.1 * y).ravel()
+    error = {}
+    for prior in (True, False):
+        for cell_plane in (False, True):
+            surface = fit_grid_detailed(grid, terrain_prior=prior, cell_plane=cell_plane).surface
+            error[prior, cell_plane] = surface(x.ravel(), y.ravel()) - truth
+    assert np.median(error[True, False]) < -0.025
+    assert np.abs(error[True, True]).max() < 0.005
+    assert np.median(error[False, False]) < -0.07
+    np.testing.assert_array_equal(error[False, True], error[False, False])
+
+
+def test_cell_plane_leaves_level_and_gentle_ground_to_eq_1(rng):
+    # a tilt fitted to noise fails the F test, and a gentle slope (3 deg: it spreads the points
+    # of a 0.5 m cell by 8 mm) stays under tilt_spread: there the sample is eq. 1's; a 20 deg
+    # slope spreads them by 52 mm and gets its plane
+    xy = rng.uniform(0, 12, size=(24 * 24 * 16, 2))
+    noise = rng.normal(0, 0.01, len(xy))
+    for deg, planes in ((0.0, False), (3.0, False), (20.0, True)):
+        z = np.tan(np.radians(deg)) * xy[:, 0] + noise
+        grid = quantize_points(np.column_stack([xy, z]), cell_size=0.5, plane=True,
+                               tilt_spread=0.03)
+        dense = grid.count >= 8
+        moved = np.mean(grid.plane_sample[dense] != grid.z[dense])
+        assert (moved > 0.95) if planes else (moved < 0.02), (deg, moved)
+
+
+def test_cell_plane_needs_the_planes_and_reaches_the_stage_and_api(rng):
+    import open3d as o3d
+
+    from o3d_terrain import fit_terrain
+    from o3d_terrain.stages.terrain import RationalBSplineTerrain
+
+    slope = np.tan(np.radians(25.0))
+    xy = rng.uniform(0, 8, size=(6000, 2))
+    positions = np.column_stack([xy, slope * xy[:, 1] + rng.normal(0, 0.01, len(xy))])
+    with pytest.raises(InputError, match="cell_plane needs"):
+        fit_grid_detailed(quantize_points(positions, cell_size=0.5), cell_plane=True)
+    assert RationalBSplineTerrain().cell_plane  # the default of the stage and the api
+    # the array path gathers the planes in the grid's pass, the frame path (a grid made
+    # without them) in a second quantization of the same cells: the same surface
+    from_array = fit_terrain(positions)
+    cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(positions))
+    from_frame = fit_terrain(cloud)
+    np.testing.assert_array_equal(from_array.control_points, from_frame.control_points)
+    assert not np.array_equal(from_array.control_points,
+                              fit_terrain(positions, cell_plane=False).control_points)
+
+
+def test_grid_stage_gathers_the_planes_the_fit_defaults_read(rng):
+    from o3d_terrain.grid import with_cell_planes
+    from o3d_terrain.stages.grid_quantize import GridQuantize
+    from o3d_terrain.terrain import NOISE_FLOOR
+
+    xy = rng.uniform(0, 8, size=(6000, 2))
+    positions = np.column_stack([xy, 0.5 * xy[:, 0] + rng.normal(0, 0.01, len(xy))])
+    grid = GridQuantize().grid(positions)
+    assert grid.plane_sample is not None and grid.tilt_spread == NOISE_FLOOR
+    assert with_cell_planes(grid, None, tilt_spread=NOISE_FLOOR) is grid  # no second pass
+    other = with_cell_planes(grid, positions, tilt_spread=0.1)  # another noise floor: redone
+    direct = quantize_points(positions, cell_size=0.5, region=grid.region, plane=True,
+                             tilt_spread=0.1)
+    np.testing.assert_array_equal(other.plane_sample, direct.plane_sample)
+    assert other.tilt_spread == 0.1
+    with pytest.raises(InputError, match="need the points"):
+        with_cell_planes(quantize_points(positions, cell_size=0.5), None)

@@ -47,15 +47,103 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
     return out
 
 
+#: fewest points whose plane eq. 1 uses: a plane takes up to three degrees of freedom from
+#: the points, so four leave at least one for the spread about it (fewer: eq. 1)
+PLANE_MIN_POINTS = 4
+
+#: a cell's plane is used only where its tilt explains this many times more of the points'
+#: spread per degree of freedom than the residuals do (F test, about the 95 % quantile for
+#: the degrees of freedom of 5-30 points); elsewhere the cell keeps the mean and eq. 1
+PLANE_SIGNIFICANCE = 4.0
+
+#: a cell's plane tilts only along the directions its points span by a standard deviation of
+#: at least this many cells (points on one line, a single scan ring through the cell, give a
+#: plane tilted along that line and level across it: no extrapolation from noise)
+PLANE_SPAN = 0.05
+
+
+@numba.njit(cache=True, inline="always")
+def _offset(d, cell_size, inverse, n):
+    """Offset from its cell's centre of a coordinate ``d`` = x - x_min inside the grid (the
+    cell of :func:`_scaled_cell`: a point on the far edge belongs to the last cell)."""
+    i = math.floor(d * inverse if inverse > 0.0 else d / cell_size)
+    if i >= n:
+        i = n - 1
+    return d - (i + 0.5) * cell_size
+
+
+@numba.njit(cache=True, inline="always")
+def _cell_plane(n, mean, su, sv, suu, svv, suv, suz, svz, cell_size, max_grade):
+    """(gx, gy, level, tilts) of the least-squares plane z = mean + gx (u - mu) + gy (v - mv)
+    through a cell's n points from their sums (u, v: offsets from the cell's centre), tilted
+    only along the principal directions of the points' (u, v) covariance whose standard
+    deviation reaches :data:`PLANE_SPAN` cells, its grade |(gx, gy)| capped at ``max_grade``;
+    level = its z at the cell's centre; tilts = the number of directions it tilts along (the
+    degrees of freedom its slopes take from the residuals). Fewer than
+    :data:`PLANE_MIN_POINTS` points: a level plane at the mean."""
+    if n < PLANE_MIN_POINTS:
+        return 0.0, 0.0, mean, 0.0
+    inv = 1.0 / n
+    mu = su * inv
+    mv = sv * inv
+    a = suu * inv - mu * mu  # covariance [[a, b], [b, d]] of (u, v)
+    b = suv * inv - mu * mv
+    d = svv * inv - mv * mv
+    p = suz * inv - mu * mean  # covariance of (u, v) with z
+    q = svz * inv - mv * mean
+    span = (PLANE_SPAN * cell_size) ** 2
+    half_trace = 0.5 * (a + d)
+    gap = math.sqrt(0.25 * (a - d) * (a - d) + b * b)
+    large = half_trace + gap
+    small = half_trace - gap
+    gx = 0.0
+    gy = 0.0
+    tilts = 0.0
+    if small >= span:  # spread over the cell: the full least-squares plane
+        det = a * d - b * b
+        gx = (d * p - b * q) / det
+        gy = (a * q - b * p) / det
+        tilts = 2.0
+    elif large >= span:  # along one line: tilt along its direction e only
+        if abs(b) > 1e-300:
+            ex = large - d
+            ey = b
+        elif a >= d:
+            ex = 1.0
+            ey = 0.0
+        else:
+            ex = 0.0
+            ey = 1.0
+        norm = math.sqrt(ex * ex + ey * ey)
+        ex /= norm
+        ey /= norm
+        slope = (ex * p + ey * q) / large
+        gx = slope * ex
+        gy = slope * ey
+        tilts = 1.0
+    grade = math.sqrt(gx * gx + gy * gy)
+    if grade > max_grade:
+        gx *= max_grade / grade
+        gy *= max_grade / grade
+    return gx, gy, mean - gx * mu - gy * mv, tilts
+
+
 @numba.njit(cache=True)
 def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0,
-             inverse=0.0):
+             inverse=0.0, plane=False, max_grade=1.0, tilt_spread=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
     and mean z of the rows (x, y, z) of an (N, 3) array (read in place); with ``layer`` > 0
     also the number and the sum of the z values within [lowest, lowest + layer] per cell and
     the lowest z above lowest + layer (inf where none): the ground-layer statistics of
     :mod:`o3d_terrain.ground_layer`, summed in point order, and what its canopy rule needs
-    (empty arrays otherwise).
+    (empty arrays otherwise). With ``plane`` also eq. 1 with the in-cell slope removed
+    (:func:`_cell_plane`): per cell the height at the cell's centre of the least-squares
+    plane through its points (``level``) and the sample level + max(lowest residual, -s)
+    (``plane_sample``), s the residuals' spread with the plane's degrees of freedom given
+    back; the cell's mean and Z where it has fewer than :data:`PLANE_MIN_POINTS` points, the
+    tilt fails the F test of :data:`PLANE_SIGNIFICANCE` or it spreads the points' heights by
+    less than ``tilt_spread`` (m, root mean square over the points). From sums gathered in the
+    same two passes over the points (empty arrays otherwise).
 
     Each point's cell is :func:`_cell`, found in the first pass over the points and kept for
     the second (no separate pass). ``inverse`` > 0 must be exactly 1 / cell_size (a power of
@@ -77,6 +165,16 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     highest = np.full(m, -np.inf)
     nonfinite = 0
     outside = 0
+    mp = m if plane else 0
+    # plane sums: offsets from the cell centre (u, v) and their products with each other and z
+    su = np.zeros(mp)
+    sv = np.zeros(mp)
+    suu = np.zeros(mp)
+    svv = np.zeros(mp)
+    suv = np.zeros(mp)
+    suz = np.zeros(mp)
+    svz = np.zeros(mp)
+    offsets = np.empty((n if plane else 0, 2))  # (u, v) of each point, kept for the 2nd pass
     for k in range(n):
         if inverse > 0.0:
             c = _scaled_cell((positions[k, 0] - x_min) * inverse,
@@ -96,10 +194,37 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         total[c] += v
         lowest[c] = min(lowest[c], v)  # branch-free (cells hold few points: branches mispredict)
         highest[c] = max(highest[c], v)
+        if plane:
+            u = _offset(positions[k, 0] - x_min, cell_size, inverse, nx)
+            w = _offset(positions[k, 1] - y_min, cell_size, inverse, ny)
+            offsets[k, 0] = u
+            offsets[k, 1] = w
+            su[c] += u
+            sv[c] += w
+            suu[c] += u * u
+            svv[c] += w * w
+            suv[c] += u * w
+            suz[c] += u * v
+            svz[c] += w * v
     mean = np.zeros(m)
     for c in range(m):
         if count[c] > 0:
             mean[c] = total[c] / count[c]
+    # the cells' planes z = mean + gx (u - mean u) + gy (v - mean v); level = its z at u = v = 0
+    grade_x = np.zeros(mp)
+    grade_y = np.zeros(mp)
+    level = np.zeros(mp)
+    tilts = np.zeros(mp)
+    for c in range(mp):
+        if count[c] > 0:
+            gx, gy, lv, tl = _cell_plane(count[c], mean[c], su[c], sv[c], suu[c], svv[c],
+                                         suv[c], suz[c], svz[c], cell_size, max_grade)
+            grade_x[c] = gx
+            grade_y[c] = gy
+            level[c] = lv
+            tilts[c] = tl
+    least = np.full(mp, np.inf)  # lowest residual about the plane
+    residual_squares = np.zeros(mp)
     squares = np.zeros(m)
     use_layer = layer > 0.0
     layer_count = np.zeros(m if use_layer else 0, np.int64)
@@ -112,6 +237,10 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         v = positions[k, 2]
         d = v - mean[c]
         squares[c] += d * d
+        if plane:
+            r = v - level[c] - grade_x[c] * offsets[k, 0] - grade_y[c] * offsets[k, 1]
+            residual_squares[c] += r * r
+            least[c] = min(least[c], r)
         if use_layer:
             if v <= lowest[c] + layer:
                 layer_count[c] += 1
@@ -119,6 +248,7 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
             else:
                 layer_above[c] = min(layer_above[c], v)
     height = np.zeros(m)
+    plane_sample = np.zeros(mp)
     state = np.zeros(m, np.uint8)
     for c in range(m):
         if count[c] >= min_points and count[c] > 0:
@@ -146,6 +276,36 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
                 if n > 0:
                     height[c] = acc / n
                     state[c] = FILLED
+    for c in range(mp):  # eq. 1's sample where the plane has too few points or none
+        k = count[c]
+        if state[c] == MEASURED and k >= PLANE_MIN_POINTS and tilts[c] > 0:
+            # the plane's tilt must explain more of the spread than the noise would (an F test
+            # of the slopes) and spread the heights by at least tilt_spread: on level or gently
+            # sloping ground a tilt fitted to noise or to the relief of grass would only lift
+            # the sample, and eq. 1's bias (at most the tilt's spread) stays within the noise
+            # the fit allows for; there the plane is the mean and the sample eq. 1's
+            inv = 1.0 / k
+            mu = su[c] * inv
+            mv = sv[c] * inv
+            gx = grade_x[c]
+            gy = grade_y[c]
+            explained = k * (gx * gx * (suu[c] * inv - mu * mu)
+                             + 2.0 * gx * gy * (suv[c] * inv - mu * mv)
+                             + gy * gy * (svv[c] * inv - mv * mv))
+            if (explained / tilts[c] * (k - 1.0 - tilts[c])
+                    < PLANE_SIGNIFICANCE * residual_squares[c]
+                    or explained < k * tilt_spread * tilt_spread):
+                tilts[c] = 0.0
+                level[c] = mean[c]
+        if state[c] == MEASURED and k >= PLANE_MIN_POINTS and tilts[c] > 0:
+            # the residuals' spread with the degrees of freedom the plane took from them (1 for
+            # the mean, ``tilts`` for the slopes) given back, in eq. 1's convention (sigma^2 =
+            # squares / k, i.e. (k - 1) / k of the unbiased variance): on level ground the
+            # same spread as eq. 1's in expectation, on a slope without the rise across it
+            spread = residual_squares[c] / (k - 1.0 - tilts[c]) * (k - 1.0) / k
+            plane_sample[c] = level[c] + max(least[c], -math.sqrt(spread))
+        else:
+            plane_sample[c] = height[c]
     return (
         height.reshape(nx, ny),
         count.reshape(nx, ny),
@@ -158,6 +318,8 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         layer_count.reshape(nx, ny) if use_layer else layer_count.reshape(0, 0),
         layer_sum.reshape(nx, ny) if use_layer else layer_sum.reshape(0, 0),
         layer_above.reshape(nx, ny) if use_layer else layer_above.reshape(0, 0),
+        level.reshape(nx, ny) if plane else level.reshape(0, 0),
+        plane_sample.reshape(nx, ny) if plane else plane_sample.reshape(0, 0),
     )
 
 

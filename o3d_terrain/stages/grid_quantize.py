@@ -8,6 +8,7 @@ from ..frame import Frame
 from ..grid import HeightGrid, quantize_points
 from ..ground_layer import default_layer
 from ..options import POSITIVE, Range, option
+from ..terrain import NOISE_FLOOR
 from .base import Stage, stage
 
 
@@ -24,7 +25,10 @@ class GridQuantize(Stage):
 
     Cells without points take the mean of their measured neighbours (FILLED); with no measured
     neighbour they are INVALID with Z = 0 and carry no weight in the terrain fit. Non-finite
-    points and points outside the region are skipped and counted in the frame's notes.
+    points and points outside the region are skipped and counted in the frame's notes. The
+    same pass also gathers what RationalBSplineTerrain's defaults read: the ground-layer
+    statistics and each cell's least-squares plane (eq. 1 with the in-cell slope removed,
+    its cell_plane option).
     """
 
     reads = ()
@@ -53,15 +57,18 @@ class GridQuantize(Stage):
                 f"{self.type_name}: {grid.skipped_outside} point(s) outside the region")
         return frame
 
-    def grid(self, positions: np.ndarray, *, region=None, layer: float | None = None
-             ) -> HeightGrid:
+    def grid(self, positions: np.ndarray, *, region=None, layer: float | None = None,
+             plane: bool = True, tilt_spread: float = NOISE_FLOOR) -> HeightGrid:
         """The grid of :meth:`run` from (N, 3) positions. region: overrides the option (e.g.
         an extent already computed); layer: thickness of the ground-layer statistics
         gathered in the same pass (None = :func:`~o3d_terrain.ground_layer.default_layer`,
-        what RationalBSplineTerrain's defaults use; 0 = none)."""
+        what RationalBSplineTerrain's defaults use; 0 = none); plane, tilt_spread: also the
+        cells' planes (:func:`quantize_points`; by default those RationalBSplineTerrain's
+        defaults use, cell_plane with tilt_spread = its noise_floor)."""
         return quantize_points(
             positions, cell_size=self.cell_size,
             region=self.region if region is None else region,
             min_points=self.min_points, fill_empty=self.fill_empty,
-            layer=default_layer(self.cell_size) if layer is None else layer,
+            layer=default_layer(self.cell_size) if layer is None else layer, plane=plane,
+            tilt_spread=tilt_spread,
         )

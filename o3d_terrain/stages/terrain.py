@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
-from ..grid import HeightGrid
+from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points
-from ..terrain import MAX_SLOPE_DEG, METHODS, TerrainFit, fit_grid_detailed
+from ..terrain import MAX_SLOPE_DEG, METHODS, NOISE_FLOOR, TerrainFit, fit_grid_detailed
 from .base import Stage, stage
 
 
@@ -47,7 +47,7 @@ class RationalBSplineTerrain(Stage):
     smoothing: float = option(0.05, rule=NON_NEGATIVE,
                               help="thin-plate penalty relative to the data weight per control "
                                    "point; keeps areas without data bounded")
-    noise_floor: float = option(0.03, unit="m", rule=NON_NEGATIVE,
+    noise_floor: float = option(NOISE_FLOOR, unit="m", rule=NON_NEGATIVE,
                                 help="smallest noise threshold of the robust weights")
     rational: bool = option(True, help="derive control-point weights R from the sample weights")
     terrain_prior: bool = option(
@@ -68,6 +68,16 @@ class RationalBSplineTerrain(Stage):
         help="robust method: a cell whose points form a layer just above its lowest point "
              "under an object (canopy, wall) gives the fit the layer's height instead of "
              "eq. 1's lifted sample (o3d_terrain.ground_layer)",
+    )
+    cell_plane: bool = option(
+        True,
+        help="robust method with terrain_prior: in cells whose points are all terrain (the "
+             "prior's compact cells) eq. 1 about the least-squares plane of the "
+             "points where its tilt is significant and spreads them by more than noise_floor "
+             "(sample = the plane's height at the cell centre minus the spread about it), not "
+             "about their mean, which sits about rise / sqrt(12) low on slopes; needs the "
+             "points; false = eq. 1 everywhere (docs/algorithm.md, 'Eq. 1 with the in-cell "
+             "slope removed')",
     )
 
     range_noise: float = option(
@@ -93,11 +103,15 @@ class RationalBSplineTerrain(Stage):
     def fit(self, grid: HeightGrid, positions: np.ndarray | None = None,
             range_noise: RangeNoise | None = None) -> TerrainFit:
         """The fit of :meth:`run` on a height grid; ``positions`` (the points the grid was
-        made from) give the ground-layer samples and, with a noise model (this stage's
+        made from) give the ground-layer samples, the cells' planes with ``cell_plane`` when
+        the grid was made without them, and, with a noise model (this stage's
         ``range_noise`` option, else ``range_noise``), the per-cell noise. The surface carries
         the grid's cell size."""
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
+        if self.cell_plane and (grid.plane_sample is None
+                                or grid.tilt_spread != self.noise_floor):
+            grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         fit = fit_grid_detailed(
             grid, control_points=self.control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
@@ -106,6 +120,7 @@ class RationalBSplineTerrain(Stage):
             max_obstacle_width=self.max_obstacle_width,
             positions=positions if self.ground_layer else None,
             ground_layer=self.ground_layer, range_noise=range_noise,
+            cell_plane=self.cell_plane,
         )
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         return dataclasses.replace(fit, surface=surface)
