@@ -75,18 +75,26 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     """In place: the ``terrain`` labels of the foot columns (module docstring) become
     ``obstacle``; returns how many changed. Noise cells take the points with heights in
     (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
-    non-finite coordinates or heights never mark nor match a column."""
+    non-finite coordinates or heights never mark nor match a column. The first pass keeps the
+    indices of the candidates and of the tall obstacle points, so the passes for the noise
+    cells, the columns and the objects read only those (the candidates' noise-cell slots
+    kept from the first of them); the terrain points of marked columns are kept as
+    (point, slot) pairs for the last pass."""
     n = heights.shape[0]
     # candidates: obstacle points below foot_height; the keys' origin is their lowest x, y
     # (and how many obstacle points are at least object_height up, for the object set)
+    candidates = np.empty(n, np.int32)  # their indices: the later passes read only them
+    tall_points = np.empty(n, np.int32)
     count = 0
     tall = 0
     x0 = math.inf
     y0 = math.inf
     for k in range(n):
         if labels[k] == obstacle and heights[k] >= object_height:
+            tall_points[tall] = k
             tall += 1
         if _candidate(k, positions, heights, labels, obstacle, foot_height):
+            candidates[count] = k
             count += 1
             x0 = min(x0, positions[k, 0])
             y0 = min(y0, positions[k, 1])
@@ -98,11 +106,11 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     inv_noise = 1.0 / noise_cell
     # the noise cells of the candidates, then the depths of the points below the surface there
     cells, cell_shift, cell_mask = _new_set(count)
-    for k in range(n):
-        if _candidate(k, positions, heights, labels, obstacle, foot_height):
-            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_noise)
-            if key >= 0:
-                _find(cells, cell_shift, cell_mask, key, True)
+    cell_slots = np.empty(count, np.int64)
+    for c in range(count):
+        k = candidates[c]
+        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_noise)
+        cell_slots[c] = _find(cells, cell_shift, cell_mask, key, True) if key >= 0 else -1
     depth_sum = np.zeros(cells.size)
     depth_count = np.zeros(cells.size, np.int64)
     for k in range(n):
@@ -120,16 +128,13 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     level = np.zeros(columns.size, np.int64)
     top = np.full(columns.size, -np.inf)  # the highest mark of a column
     bottom = np.full(columns.size, np.inf)  # the lowest of its marks and terrain points
-    for k in range(n):
-        if not _candidate(k, positions, heights, labels, obstacle, foot_height):
-            continue
-        x = positions[k, 0]
-        y = positions[k, 1]
-        s = _find(cells, cell_shift, cell_mask, _key(x, y, x0, y0, inv_noise), False)
+    for c in range(count):
+        k = candidates[c]
+        s = cell_slots[c]
         if s >= 0 and depth_count[s] >= 3 and \
                 heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
             continue
-        key = _key(x, y, x0, y0, inv_cell)
+        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
         if key >= 0:
             s = _find(columns, shift, mask, key, True)
             marks[s] += 1
@@ -138,11 +143,11 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     # the object: columns with an obstacle point at least object_height up, and the marked
     # columns that have one among themselves and their 8 neighbours
     objects, object_shift, object_mask = _new_set(tall)
-    for k in range(n):
-        if labels[k] == obstacle and heights[k] >= object_height:
-            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
-            if key >= 0:
-                _find(objects, object_shift, object_mask, key, True)
+    for c in range(tall):
+        k = tall_points[c]
+        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+        if key >= 0:
+            _find(objects, object_shift, object_mask, key, True)
     near = np.zeros(columns.size, np.bool_)
     for s in range(columns.size):
         key = columns[s]
@@ -157,7 +162,9 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                     near[s] = True
     # the terrain points in marked columns (their slots kept), then those of the columns
     # where the marks are enough of them
-    slots = np.full(n, -1, np.int64)
+    hit_points = candidates  # reused: (point, slot) of the terrain points in marked columns
+    hit_slots = np.empty(n, np.int32)
+    hits = 0
     for k in range(n):
         if labels[k] == terrain:
             key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
@@ -165,14 +172,16 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                 s = _find(columns, shift, mask, key, False)
                 if s >= 0:
                     level[s] += 1
-                    slots[k] = s
+                    hit_points[hits] = k
+                    hit_slots[hits] = s
+                    hits += 1
                     if math.isfinite(heights[k]):
                         bottom[s] = min(bottom[s], heights[k])
     changed = 0
-    for k in range(n):
-        s = slots[k]
-        if s >= 0 and near[s] and marks[s] >= fraction * (marks[s] + level[s]) \
+    for c in range(hits):
+        s = hit_slots[c]
+        if near[s] and marks[s] >= fraction * (marks[s] + level[s]) \
                 and top[s] - bottom[s] > rise:
-            labels[k] = obstacle
+            labels[hit_points[c]] = obstacle
             changed += 1
     return changed
