@@ -27,7 +27,7 @@ import numpy as np
 from ._kernels import bspline as _bs
 from ._kernels import foot as _foot
 from .errors import InputError
-from .misfit import block_size, misfit_thresholds
+from .misfit import block_size, widened_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_threshold", "heights_above_terrain", "label_heights",
@@ -155,8 +155,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     if threshold is None:
         threshold = auto_threshold(h)
         if misfit and isinstance(surface, TerrainSurface):
-            local = misfit_thresholds(p, h, threshold, block=block_size(surface),
-                                      grade=lambda x, y: np.hypot(*surface.gradient(x, y)))
+            local = widened_thresholds(p, h, threshold, block=block_size(surface),
+                                       grade=lambda x, y: np.hypot(*surface.gradient(x, y)))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:
