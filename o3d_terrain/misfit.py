@@ -87,6 +87,11 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
     gives the quotient bit for bit."""
     total_h = np.zeros(nx * ny)
     count = np.zeros(nx * ny, np.int64)
+    # consecutive points of a scan mostly share a cell: the cell's running sum and count stay
+    # in registers while they do (the same additions in the same order as one per point)
+    run = -1
+    run_h = 0.0
+    run_count = 0
     for i in range(h.size):
         hi = h[i]
         x = positions[i, 0]
@@ -103,8 +108,18 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
         if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
             continue
         c = ix * ny + iy
-        total_h[c] += hi
-        count[c] += 1
+        if c != run:
+            if run >= 0:
+                total_h[run] = run_h
+                count[run] = run_count
+            run = c
+            run_h = total_h[c]
+            run_count = count[c]
+        run_h += hi
+        run_count += 1
+    if run >= 0:
+        total_h[run] = run_h
+        count[run] = run_count
     low = np.full(nx * ny, np.inf)
     for c in range(nx * ny):
         if count[c] > 0:
