@@ -131,6 +131,9 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     level = np.zeros(columns.size, np.int64)
     top = np.full(columns.size, -np.inf)  # the highest mark of a column
     bottom = np.full(columns.size, np.inf)  # the lowest of its marks and terrain points
+    # a one-bit-per-hash screen of the marked columns (8 KB, in cache): most terrain points
+    # are in no marked column and need no look-up in the set
+    screen = np.zeros(1024, np.uint64)
     for c in range(count):
         k = candidates[c]
         s = cell_slots[c]
@@ -140,6 +143,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
         key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
         if key >= 0:
             s = _find(columns, shift, mask, key, True)
+            b = (np.uint64(key) * _MIX) >> np.uint64(48)
+            screen[b >> np.uint64(6)] |= np.uint64(1) << (b & np.uint64(63))
             marks[s] += 1
             top[s] = max(top[s], heights[k])
             bottom[s] = min(bottom[s], heights[k])
@@ -151,6 +156,9 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
         if labels[k] == terrain:
             key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
             if key >= 0:
+                b = (np.uint64(key) * _MIX) >> np.uint64(48)
+                if (screen[b >> np.uint64(6)] >> (b & np.uint64(63))) & np.uint64(1) == 0:
+                    continue
                 s = _find(columns, shift, mask, key, False)
                 if s >= 0:
                     level[s] += 1
