@@ -85,7 +85,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     instead of all being inserted into a set of their own."""
     n = heights.shape[0]
     # candidates: obstacle points below foot_height; the keys' origin is their lowest x, y
-    # (and how many obstacle points are at least object_height up, for the object set)
+    # (and the obstacle points at least object_height up, for the object test)
     candidates = np.empty(n, np.int32)  # their indices: the later passes read only them
     tall_points = np.empty(n, np.int32)
     count = 0
