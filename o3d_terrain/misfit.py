@@ -32,8 +32,9 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["misfit_thresholds", "block_size", "MISFIT_FACTOR", "MISFIT_HIGH", "MISFIT_CELL",
-           "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS", "MISFIT_REACH"]
+__all__ = ["misfit_thresholds", "widened_thresholds", "block_size", "MISFIT_FACTOR",
+           "MISFIT_HIGH", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
+           "MISFIT_REACH"]
 
 #: threshold = this many robust misfit scales (the factor of the global automatic threshold)
 MISFIT_FACTOR = 3.5
@@ -86,6 +87,11 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
     gives the quotient bit for bit."""
     total_h = np.zeros(nx * ny)
     count = np.zeros(nx * ny, np.int64)
+    # consecutive points of a scan mostly share a cell: the cell's running sum and count stay
+    # in registers while they do (the same additions in the same order as one per point)
+    run = -1
+    run_h = 0.0
+    run_count = 0
     for i in range(h.size):
         hi = h[i]
         x = positions[i, 0]
@@ -102,8 +108,18 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
         if ix < 0 or iy < 0 or ix >= nx or iy >= ny:
             continue
         c = ix * ny + iy
-        total_h[c] += hi
-        count[c] += 1
+        if c != run:
+            if run >= 0:
+                total_h[run] = run_h
+                count[run] = run_count
+            run = c
+            run_h = total_h[c]
+            run_count = count[c]
+        run_h += hi
+        run_count += 1
+    if run >= 0:
+        total_h[run] = run_h
+        count[run] = run_count
     low = np.full(nx * ny, np.inf)
     for c in range(nx * ny):
         if count[c] > 0:
@@ -197,13 +213,27 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     data pin the surface, so on a slope it departs from the surface by up to reach x
     tan(slope). Points of blocks that were not widened keep ``threshold``."""
     p = np.asarray(positions, dtype=np.float64)
+    out = widened_thresholds(p, heights, threshold, block=block, factor=factor, high=high,
+                             cell=cell, significant=significant, min_cells=min_cells,
+                             grade=grade, reach=reach)
+    return np.full(len(p), float(threshold)) if out is None else out
+
+
+def widened_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: float, *,
+                       block: float, factor: float = MISFIT_FACTOR, high: float = MISFIT_HIGH,
+                       cell: float = MISFIT_CELL, significant: float = MISFIT_SIGNIFICANT,
+                       min_cells: int = MISFIT_MIN_CELLS, grade=None,
+                       reach: float | None = None) -> np.ndarray | None:
+    """:func:`misfit_thresholds`, or None when no block is widened (every point keeps
+    ``threshold``; the usual case where the surface follows the terrain): no per-point array
+    is made then."""
+    p = np.asarray(positions, dtype=np.float64)
     h = np.ascontiguousarray(heights, dtype=np.float64)
-    out = np.full(len(p), float(threshold))
     if high <= threshold or not block > 0:
-        return out
+        return None
     x_min, x_max, y_min, y_max, n_finite = _finite_extent(p, h)
     if n_finite == 0:
-        return out
+        return None
     per_block = max(1, int(round(block / cell)))
     nx = int((x_max - x_min) / cell) + 1
     ny = int((y_max - y_min) / cell) + 1
@@ -214,10 +244,11 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     local = factor * 1.4826 * scales
     local = np.where(local >= significant * threshold, np.minimum(local, high), threshold)
     if not (local > threshold).any():  # the usual case where the surface follows the terrain
-        return out
+        return None
     # a surface that bridges a gully undercuts the ridges beside it: the neighbouring blocks
     # (within one block, i.e. two control spacings) get the widened threshold too
     local = _dilate(local.reshape(nbx, nby)).ravel()
+    out = np.full(len(p), float(threshold))
     _spread_blocks(out, p, h, local, x_min, y_min, cell * per_block, nbx, nby)
     if grade is not None:
         if reach is None:

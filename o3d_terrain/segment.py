@@ -27,7 +27,7 @@ import numpy as np
 from ._kernels import bspline as _bs
 from ._kernels import foot as _foot
 from .errors import InputError
-from .misfit import block_size, misfit_thresholds
+from .misfit import block_size, widened_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_threshold", "heights_above_terrain", "label_heights",
@@ -159,8 +159,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     if threshold is None:
         threshold = auto_threshold(h)
         if misfit and isinstance(surface, TerrainSurface):
-            local = misfit_thresholds(p, h, threshold, block=block_size(surface),
-                                      grade=lambda x, y: np.hypot(*surface.gradient(x, y)))
+            local = widened_thresholds(p, h, threshold, block=block_size(surface),
+                                       grade=lambda x, y: np.hypot(*surface.gradient(x, y)))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:
@@ -242,21 +242,21 @@ def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,
     h >= -below_threshold * f become TERRAIN, f = min(sqrt(1 + |grad S|^2), ``cap``) at the
     point (t(r): :func:`thresholds`). Only the points within ``cap`` times the thresholds are
     looked at, so the surface's gradient is evaluated at few points."""
+    if labels.dtype != np.uint8 or labels.ndim != 1 or not labels.flags.writeable:
+        raise InputError("relabel_along_normal: labels must be a writeable (N,) uint8 array")
     p = _positions(positions)
-    t = thresholds(p, threshold=threshold, range_coefficient=range_coefficient,
-                   sensor_origin=sensor_origin) if range_coefficient else float(threshold)
-    obstacle = (labels == TerrainLabel.OBSTACLE) & (heights <= cap * t)
-    below = (labels == TerrainLabel.BELOW_TERRAIN) & (heights >= -cap * below_threshold)
-    candidates = np.flatnonzero(obstacle | below)
-    if candidates.size == 0:
-        return
-    gx, gy = surface.gradient(p[candidates, 0], p[candidates, 1])
-    factor = np.sqrt(1.0 + gx * gx + gy * gy)
-    factor = np.where(np.isfinite(factor), np.minimum(factor, cap), 1.0)
-    h = heights[candidates]
-    tc = t[candidates] if isinstance(t, np.ndarray) else t
-    ok = np.where(obstacle[candidates], h <= tc * factor, h >= -below_threshold * factor)
-    labels[candidates[ok]] = TerrainLabel.TERRAIN
+    if not (len(p) == len(labels) == len(heights)):
+        raise InputError(f"relabel_along_normal: labels ({len(labels)}), heights "
+                         f"({len(heights)}) and positions ({len(p)}) must have one entry per "
+                         f"point")
+    tol_x, tol_y = surface._tolerances()
+    _bs.relabel_along_normal(
+        labels, np.ascontiguousarray(heights, dtype=np.float64), p, float(threshold),
+        float(below_threshold), float(range_coefficient), float(sensor_origin[0]),
+        float(sensor_origin[1]), float(cap), float(surface.origin[0]), float(surface.origin[1]),
+        tol_x, tol_y, surface.knots_x, surface.knots_y, int(surface.degree),
+        surface.control_points, surface.weights, int(TerrainLabel.TERRAIN),
+        int(TerrainLabel.OBSTACLE), int(TerrainLabel.BELOW_TERRAIN))
 
 
 def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,

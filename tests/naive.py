@@ -345,3 +345,23 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
             labels[k] = obstacle
             changed += 1
     return labels, changed
+
+
+def relabel_along_normal(labels, heights, positions, surface, threshold, below_threshold,
+                         range_coefficient=0.0, sensor_origin=(0.0, 0.0, 0.0), cap=2.0,
+                         terrain=1, obstacle=2, below=3):
+    """Thresholds along the normal with numpy masks: OBSTACLE points with h <= t(r) f and
+    BELOW_TERRAIN points with h >= -below_threshold f become TERRAIN, f = min(sqrt(1 +
+    |grad S|^2), cap) (1 where it is not finite), the gradient from ``surface.gradient`` (the
+    B-spline sums). Returns the new labels."""
+    labels = labels.copy()
+    r2 = (positions[:, 0] - sensor_origin[0]) ** 2 + (positions[:, 1] - sensor_origin[1]) ** 2
+    t = threshold + range_coefficient * r2 if range_coefficient else np.full(len(labels),
+                                                                             threshold)
+    gx, gy = surface.gradient(positions[:, 0], positions[:, 1])
+    factor = np.sqrt(1.0 + gx * gx + gy * gy)
+    factor = np.where(np.isfinite(factor), np.minimum(factor, cap), 1.0)
+    up = (labels == obstacle) & (heights <= t * factor)
+    down = (labels == below) & (heights >= -below_threshold * factor)
+    labels[up | down] = terrain
+    return labels

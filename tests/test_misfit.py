@@ -4,7 +4,7 @@ checked against the truth of small synthetic clouds."""
 import numpy as np
 
 from o3d_terrain.api import segment_terrain
-from o3d_terrain.misfit import MISFIT_HIGH, misfit_thresholds
+from o3d_terrain.misfit import MISFIT_HIGH, misfit_thresholds, widened_thresholds
 from o3d_terrain.segment import TerrainLabel, widen_labels
 
 
@@ -118,3 +118,17 @@ def test_thresholds_equal_the_plain_reference(rng):
             np.testing.assert_array_equal(got, expected)
             widened += int((got > threshold).sum())
     assert widened > 0
+
+
+def test_widened_thresholds_is_none_exactly_when_no_point_is_widened():
+    rng = np.random.default_rng(11)
+    n = 20_000
+    cloud = np.c_[rng.uniform(0, 60, n), rng.uniform(0, 40, n), np.zeros(n)]
+    flat = rng.normal(0, 0.02, n)
+    gully = flat - 0.8 * ((cloud[:, 0] >= 20) & (cloud[:, 0] < 30))  # a gully it bridges
+    for heights, widened in ((flat, False), (gully, True)):
+        full = misfit_thresholds(cloud, heights, 0.1, block=10.0)
+        got = widened_thresholds(cloud, heights, 0.1, block=10.0)
+        assert (got is not None) == widened == bool((full > 0.1).any())
+        if got is not None:
+            np.testing.assert_array_equal(got, full)

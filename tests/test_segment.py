@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import math
 
+import naive
 import numpy as np
 import open3d as o3d
 import pytest
 
+from o3d_terrain._kernels import bspline as _bs
 from o3d_terrain.api import fit_terrain, segment_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG
-from o3d_terrain.segment import NORMAL_FACTOR_MAX, TerrainLabel, segment_points
+from o3d_terrain.segment import (
+    NORMAL_FACTOR_MAX,
+    TerrainLabel,
+    relabel_along_normal,
+    segment_points,
+)
 from o3d_terrain.spline import make_lsq_surface
 from o3d_terrain.stages import GridQuantize, RationalBSplineTerrain, Segmenter, SlopeEstimator
 
@@ -106,6 +113,59 @@ def test_along_normal_scales_the_range_dependent_threshold():
     pts = np.array([[x, 0.0, x + 0.6 * 1.38], [x + 1.0, 0.0, x + 1.0 + 0.7 * 1.45]])
     labels, _ = segment_points(s, pts, threshold=t, range_coefficient=k, foot_height=0)
     assert labels.tolist() == [TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE]
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_along_normal_kernel_matches_the_plain_reference(degree):
+    # a curved rational surface (slopes from flat to past the cap) and points at random
+    # heights around both bounds, some outside the surface's region or not finite
+    rng = np.random.default_rng(degree)
+    x = np.linspace(0, 30, 31)
+    y = np.linspace(-10, 10, 21)
+    z = 0.08 * (x[:, None] - 12.0) ** 2 + np.sin(y[None, :] / 2.0)
+    s = make_lsq_surface(x, y, z, control_points=(9, 7), degree=degree,
+                         rational_weights=rng.uniform(0.5, 1.5, (9, 7)))
+    n = 20_000
+    xy = np.c_[rng.uniform(-2, 32, n), rng.uniform(-12, 12, n)]
+    xy[::101, 1] = np.nan
+    heights = rng.uniform(-1.5, 1.5, n)
+    positions = np.c_[xy, s(xy[:, 0], xy[:, 1]) + heights]
+    labels = rng.choice(np.array([0, 1, 2, 3], np.uint8), n)
+    for threshold, below, k, origin in ((0.2, 0.5, 0.0, (0.0, 0.0, 0.0)),
+                                        (0.1, 0.3, 0.002, (4.0, -3.0, 0.0)),
+                                        (0.4, 0.2, 0.0, (0.0, 0.0, 0.0))):
+        expected = naive.relabel_along_normal(labels, heights, positions, s, threshold, below,
+                                              k, origin, NORMAL_FACTOR_MAX)
+        got = labels.copy()
+        relabel_along_normal(got, heights, positions, s, threshold=threshold,
+                             below_threshold=below, range_coefficient=k, sensor_origin=origin)
+        np.testing.assert_array_equal(got, expected)
+        assert (got != labels).sum() > 500  # the case relabels points
+
+
+def test_cubic_span_gradient_equals_the_b_spline_derivatives():
+    rng = np.random.default_rng(7)
+    x = np.linspace(0, 30, 31)
+    y = np.linspace(-10, 10, 21)
+    z = np.cos(x[:, None] / 3.0) * np.sin(y[None, :] / 2.0) + 0.3 * x[:, None]
+    s = make_lsq_surface(x, y, z, control_points=(12, 8),
+                         rational_weights=rng.uniform(0.5, 1.5, (12, 8)))
+    n0, n1 = s.control_points.shape
+    inv_wx = _bs._inverse_span_width(n0, 3, s.knots_x)
+    inv_wy = _bs._inverse_span_width(n1, 3, s.knots_y)
+    coef = _bs.cubic_span_coefficients(s.knots_x, s.knots_y, s.control_points, s.weights,
+                                       inv_wx, inv_wy)
+    px = rng.uniform(s.knots_x[0], s.knots_x[-1], 500)
+    py = rng.uniform(s.knots_y[0], s.knots_y[-1], 500)
+    gx, gy = s.gradient(px + s.origin[0], py + s.origin[1])
+    for k in range(500):
+        fx = (px[k] - s.knots_x[3]) * inv_wx
+        fy = (py[k] - s.knots_y[3]) * inv_wy
+        ix = min(max(int(fx), 0), n0 - 4)
+        iy = min(max(int(fy), 0), n1 - 4)
+        su, sv = _bs._cubic_span_gradient(coef, (ix * (n1 - 3) + iy) * 32, fx - ix, fy - iy)
+        assert su * inv_wx == pytest.approx(gx[k], rel=1e-10, abs=1e-12)
+        assert sv * inv_wy == pytest.approx(gy[k], rel=1e-10, abs=1e-12)
 
 
 def test_tensor_cloud_numpy_and_auto_threshold_agree():

@@ -494,6 +494,38 @@ def _cubic_span_ratio(c, b, u, v):
     return (((r3 * u + r2) * u + r1) * u + r0) / (((d3 * u + d2) * u + d1) * u + d0)
 
 
+@numba.njit(cache=True, inline="always")
+def _cubic_span_gradient(c, b, u, v):
+    """(dS/du, dS/dv) at local (u, v) of a span pair whose coefficients start at ``c[b]``
+    (:func:`cubic_span_coefficients`) by the quotient rule S_u = (A_u - S D_u) / D: the 8
+    polynomials in v and their v derivatives, then A, D and their derivatives in u, by Horner.
+    Equals the derivative of the B-spline sums up to rounding."""
+    r0 = ((c[b + 24] * v + c[b + 16]) * v + c[b + 8]) * v + c[b]
+    r1 = ((c[b + 25] * v + c[b + 17]) * v + c[b + 9]) * v + c[b + 1]
+    r2 = ((c[b + 26] * v + c[b + 18]) * v + c[b + 10]) * v + c[b + 2]
+    r3 = ((c[b + 27] * v + c[b + 19]) * v + c[b + 11]) * v + c[b + 3]
+    d0 = ((c[b + 28] * v + c[b + 20]) * v + c[b + 12]) * v + c[b + 4]
+    d1 = ((c[b + 29] * v + c[b + 21]) * v + c[b + 13]) * v + c[b + 5]
+    d2 = ((c[b + 30] * v + c[b + 22]) * v + c[b + 14]) * v + c[b + 6]
+    d3 = ((c[b + 31] * v + c[b + 23]) * v + c[b + 15]) * v + c[b + 7]
+    q0 = (3.0 * c[b + 24] * v + 2.0 * c[b + 16]) * v + c[b + 8]
+    q1 = (3.0 * c[b + 25] * v + 2.0 * c[b + 17]) * v + c[b + 9]
+    q2 = (3.0 * c[b + 26] * v + 2.0 * c[b + 18]) * v + c[b + 10]
+    q3 = (3.0 * c[b + 27] * v + 2.0 * c[b + 19]) * v + c[b + 11]
+    e0 = (3.0 * c[b + 28] * v + 2.0 * c[b + 20]) * v + c[b + 12]
+    e1 = (3.0 * c[b + 29] * v + 2.0 * c[b + 21]) * v + c[b + 13]
+    e2 = (3.0 * c[b + 30] * v + 2.0 * c[b + 22]) * v + c[b + 14]
+    e3 = (3.0 * c[b + 31] * v + 2.0 * c[b + 23]) * v + c[b + 15]
+    a = ((r3 * u + r2) * u + r1) * u + r0
+    d = ((d3 * u + d2) * u + d1) * u + d0
+    s = a / d
+    a_u = (3.0 * r3 * u + 2.0 * r2) * u + r1
+    d_u = (3.0 * d3 * u + 2.0 * d2) * u + d1
+    a_v = ((q3 * u + q2) * u + q1) * u + q0
+    d_v = ((e3 * u + e2) * u + e1) * u + e0
+    return (a_u - s * d_u) / d, (a_v - s * d_v) / d
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
@@ -632,14 +664,113 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
                     z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
                                         inv_wy, bx, by, left, right)
                 continue
-            sx = _uniform_span(n0, p, xk, knots_x, inv_wx)
-            sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
-            basis_funs_first_derivative(sx, xk, p, knots_x, bx, dbx, left, right)
-            basis_funs_first_derivative(sy, yk, p, knots_y, by, dby, left, right)
-            a, d, ax, dx, ay, dy = _rational_sums_first_derivatives(sx, sy, p, control, weights,
-                                                                    bx, by, dbx, dby)
-            z[k], dzdx[k], dzdy[k] = quotient_rule(a, d, ax, dx, ay, dy)
+            z[k], dzdx[k], dzdy[k] = _point_first_derivatives(
+                xk, yk, knots_x, knots_y, p, control, weights, inv_wx, inv_wy, bx, by, dbx,
+                dby, left, right)
     return z, dzdx, dzdy
+
+
+@numba.njit(cache=True, inline="always")
+def _point_first_derivatives(xk, yk, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
+                             bx, by, dbx, dby, left, right):
+    """(S, S_x, S_y) at local (xk, yk) inside the knot range (widened by the tolerance):
+    spans on the uniform knots, basis values and derivatives, then the quotient rule.
+    ``bx``/``by``/``dbx``/``dby``/``left``/``right``: scratch of size degree + 1."""
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    sx = _uniform_span(n0, p, xk, knots_x, inv_wx)
+    sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
+    basis_funs_first_derivative(sx, xk, p, knots_x, bx, dbx, left, right)
+    basis_funs_first_derivative(sy, yk, p, knots_y, by, dby, left, right)
+    a, d, ax, dx, ay, dy = _rational_sums_first_derivatives(sx, sy, p, control, weights,
+                                                            bx, by, dbx, dby)
+    return quotient_rule(a, d, ax, dx, ay, dy)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
+                         range_coefficient, sensor_x, sensor_y, cap, origin_x, origin_y, tol_x,
+                         tol_y, knots_x, knots_y, degree, control, weights, terrain, obstacle,
+                         below):
+    """In place, in one pass: ``obstacle`` points with h <= t(r) f and ``below`` points with
+    h >= -below_threshold f become ``terrain``, f = min(sqrt(1 + |grad S|^2), ``cap``) at the
+    point (1 where the gradient is not finite or the point lies outside the knot range widened
+    by ``tol_x``/``tol_y``), t(r) = threshold + range_coefficient r^2 (r: horizontal range
+    from the sensor). The gradient is evaluated only at the points within ``cap`` times their
+    threshold: for degree 3 from the span pairs' bicubic A and D
+    (:func:`_cubic_span_gradient`, as :func:`heights_above` evaluates S), else by the
+    operations of :func:`rational_surface_points`. Returns how many labels changed."""
+    n = heights.shape[0]
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    inv_wx = _inverse_span_width(n0, p, knots_x)
+    inv_wy = _inverse_span_width(n1, p, knots_y)
+    lo_x = knots_x[0] - tol_x
+    hi_x = knots_x[knots_x.shape[0] - 1] + tol_x
+    lo_y = knots_y[0] - tol_y
+    hi_y = knots_y[knots_y.shape[0] - 1] + tol_y
+    nsx = n0 - p
+    nsy = n1 - p
+    low_x = knots_x[p]
+    low_y = knots_y[p]
+    # the candidates, without branches (labels and heights mix at random along a scan)
+    candidates = np.empty(n, np.int32)
+    count = 0
+    obstacle_cap = cap * threshold
+    below_cap = -cap * below_threshold
+    for k in range(n):
+        label = labels[k]
+        h = heights[k]
+        if range_coefficient != 0.0:
+            ex = positions[k, 0] - sensor_x
+            ey = positions[k, 1] - sensor_y
+            obstacle_cap = cap * (threshold + range_coefficient * (ex * ex + ey * ey))
+        candidates[count] = k
+        count += ((label == obstacle) & (h <= obstacle_cap)) | ((label == below) & (h >= below_cap))
+    if count == 0:
+        return 0
+    coef = cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy) \
+        if p == 3 else np.empty(0)
+    bx = np.empty(p + 1)
+    by = np.empty(p + 1)
+    dbx = np.zeros(p + 1)
+    dby = np.zeros(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    changed = 0
+    for c in range(count):
+        k = candidates[c]
+        label = labels[k]
+        h = heights[k]
+        t = threshold
+        if range_coefficient != 0.0:
+            ex = positions[k, 0] - sensor_x
+            ey = positions[k, 1] - sensor_y
+            t = threshold + range_coefficient * (ex * ex + ey * ey)
+        xk = positions[k, 0] - origin_x
+        yk = positions[k, 1] - origin_y
+        factor = 1.0
+        if xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y:
+            if p == 3:
+                fx = (xk - low_x) * inv_wx
+                fy = (yk - low_y) * inv_wy
+                ix = min(max(int(fx), 0), nsx - 1)
+                iy = min(max(int(fy), 0), nsy - 1)
+                su, sv = _cubic_span_gradient(coef, (ix * nsy + iy) * 32, fx - ix, fy - iy)
+                gx = su * inv_wx
+                gy = sv * inv_wy
+            else:
+                _, gx, gy = _point_first_derivatives(xk, yk, knots_x, knots_y, p, control,
+                                                     weights, inv_wx, inv_wy, bx, by, dbx,
+                                                     dby, left, right)
+            f = math.sqrt(1.0 + gx * gx + gy * gy)
+            if math.isfinite(f):
+                factor = min(f, cap)
+        if (h <= t * factor) if label == obstacle else (h >= -below_threshold * factor):
+            labels[k] = terrain
+            changed += 1
+    return changed
 
 
 # -------------------------------------------------------------------------------------------
