@@ -153,7 +153,8 @@ def quantize_points(
     ``plane``: also eq. 1 with the in-cell slope removed (``level`` and ``plane_sample``,
     from each cell's least-squares plane, grade at most 1, where its tilt is significant and
     spreads the points' heights by at least ``tilt_spread`` m, root mean square;
-    :func:`o3d_terrain._kernels.grid.quantize`), in the same two passes."""
+    :func:`o3d_terrain._kernels.grid.quantize`), summed only over the cells whose plane can
+    pass those tests."""
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise InputError(f"positions must be (N, 3), got {positions.shape}")

@@ -201,3 +201,51 @@ def test_cell_plane_sample_on_a_slope():
     ring = np.c_[u, np.full(20, 0.2), g * u + 0.02]  # along x at y = 0.2, 0.3 off the centre
     grid = quantize_points(ring, cell_size=1.0, region=(0, 1, 0, 1), plane=True)
     assert grid.plane_sample[0, 0] == pytest.approx(g * 0.5 + 0.02, abs=1e-9)
+
+
+@pytest.mark.parametrize("tilt_spread", [0.02, 0.05, 0.1])
+def test_cell_planes_only_where_they_can_pass_match_reference(rng, tilt_spread):
+    """The kernel fits planes only in the cells whose heights spread enough for the tilt to
+    pass the tilt_spread test: cells whose tilt spreads their heights by 0.5-2 times
+    tilt_spread (little noise: the F test passes) give the plain per-cell fit's level and
+    sample on both sides of the test, with the sums of several cells interleaved in point
+    order (consecutive points mostly in one cell, as a scanner gives them)."""
+    from naive import grid_cell_planes
+
+    nx = ny = 8
+    cells = []
+    for ix in range(nx):
+        for iy in range(ny):
+            k = int(rng.integers(4, 30))
+            u = rng.uniform(0, 1, (k, 2))
+            spread = tilt_spread * rng.uniform(0.5, 2.0)  # RMS of the tilt over the points
+            direction = rng.normal(size=2)
+            slope = direction / np.linalg.norm(direction)
+            tilt = (u - u.mean(axis=0)) @ slope
+            z = 3.0 + 0.1 * ix + tilt * spread / tilt.std() + rng.normal(0, 1e-4, k)
+            cells.append(np.c_[ix + u[:, 0], iy + u[:, 1], z])
+    pts = np.concatenate(cells)
+    runs = np.split(np.arange(len(pts)), np.sort(rng.choice(len(pts), len(pts) // 4)))
+    pts = pts[np.concatenate([runs[i] for i in rng.permutation(len(runs))])]
+    grid = quantize_points(pts, cell_size=1.0, region=(0, nx, 0, ny), plane=True,
+                           tilt_spread=tilt_spread)
+    level, sample = grid_cell_planes(pts, 0.0, 0.0, 1.0, nx, ny, tilt_spread=tilt_spread)
+    np.testing.assert_allclose(grid.level, level, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(grid.plane_sample, sample, rtol=0, atol=1e-9)
+    used = grid.level != grid.mean
+    assert 5 <= used.sum() <= used.size - 5  # both sides of the tilt_spread test
+
+
+def test_cell_plane_level_of_cells_below_min_points(rng):
+    """A cell with fewer than min_points points (not MEASURED) keeps its plane's level
+    whatever the tests (they apply to MEASURED cells only): the kernel fits its plane even
+    where its heights spread too little for the tilt_spread test."""
+    u = rng.uniform(0, 1, (5, 2))
+    pts = np.c_[u, 0.2 * u[:, 0] + 0.1 * u[:, 1]]
+    tilted = quantize_points(pts, cell_size=1.0, region=(0, 1, 0, 1), plane=True)
+    assert tilted.level[0, 0] != tilted.mean[0, 0]
+    sparse = quantize_points(pts, cell_size=1.0, region=(0, 1, 0, 1), plane=True,
+                             tilt_spread=1.0, min_points=6, fill_empty=False)
+    assert sparse.state[0, 0] == INVALID
+    assert sparse.level[0, 0] == tilted.level[0, 0]
+    assert sparse.plane_sample[0, 0] == sparse.z[0, 0]

@@ -63,16 +63,6 @@ PLANE_SPAN = 0.05
 
 
 @numba.njit(cache=True, inline="always")
-def _offset(d, cell_size, inverse, n):
-    """Offset from its cell's centre of a coordinate ``d`` = x - x_min inside the grid (the
-    cell of :func:`_scaled_cell`: a point on the far edge belongs to the last cell)."""
-    i = math.floor(d * inverse if inverse > 0.0 else d / cell_size)
-    if i >= n:
-        i = n - 1
-    return d - (i + 0.5) * cell_size
-
-
-@numba.njit(cache=True, inline="always")
 def _cell_plane(n, mean, su, sv, suu, svv, suv, suz, svz, cell_size, max_grade):
     """(gx, gy, level, tilts) of the least-squares plane z = mean + gx (u - mu) + gy (v - mv)
     through a cell's n points from their sums (u, v: offsets from the cell's centre), tilted
@@ -129,6 +119,188 @@ def _cell_plane(n, mean, su, sv, suu, svv, suv, suz, svz, cell_size, max_grade):
 
 
 @numba.njit(cache=True)
+def _plane_candidates(count, squares, min_points, tilt_spread, plane):
+    """(slot, candidates, members): per cell its slot among the cells whose plane
+    :func:`quantize` must fit (-1 elsewhere), their number and the number of their points.
+
+    A cell needs no plane where the result without one is known: fewer than
+    :data:`PLANE_MIN_POINTS` points (level = the mean, sample eq. 1's), or a MEASURED cell
+    whose k heights square to less than k tilt_spread^2 about their mean (``squares``, eq. 1's
+    sum). Proof of the latter: the plane's tilt spreads the heights by ``explained`` =
+    sum_i (g . (p_i - mean p))^2, the squares of its fitted values about their mean; the
+    fitted values of a least-squares fit (full, or along one direction of the offsets) are the
+    orthogonal projection of the heights onto the span of the constant and those offsets, so
+    explained <= sum_i (z_i - mean z)^2 = squares (a projection does not lengthen a vector;
+    capping the grade only scales g down). So the tilt_spread test (explained < k
+    tilt_spread^2) fails and the cell keeps the mean and eq. 1's sample, as a plane without
+    tilt does (level = mean - 0 mu - 0 mv = mean bit for bit: a sum from +0 is never -0). The
+    bound is taken with 2 % to spare (candidates: squares >= 0.98 k tilt_spread^2), far above
+    the rounding of the sums (of the order of 1e-12 m^2 for heights of 1 km in 0.5 m cells).
+    Cells with fewer than ``min_points`` points (not MEASURED) keep their plane's level
+    whatever its tilt: candidates. With tilt_spread = 0 every cell of PLANE_MIN_POINTS points
+    or more is one. Without ``plane``: none."""
+    m = count.shape[0] if plane else 0
+    slot = np.full(m, -1, np.int32)
+    floor = 0.98 * tilt_spread * tilt_spread
+    candidates = 0
+    members = 0
+    for c in range(m):
+        k = count[c]
+        if k >= PLANE_MIN_POINTS and (k < min_points or squares[c] >= floor * k):
+            slot[c] = candidates
+            candidates += 1
+            members += k
+    return slot, candidates, members
+
+
+@numba.njit(cache=True)
+def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min, cell_size,
+                      ny, count, state, mean, max_grade, tilt_spread, level, plane_sample):
+    """The planes of the candidate cells of :func:`_plane_candidates` into ``level`` and
+    ``plane_sample`` (per cell, the mean and eq. 1's sample already there): their sums in one
+    pass over the points (``cells``: each point's cell, < 0 for none) that skips other cells'
+    points on their ``slot``, kept in registers while consecutive points stay in one cell;
+    :func:`_cell_plane` from the sums; the tilt_spread test from them too; the residuals in
+    one pass over the points of the cells that pass it, for the F test. Sums in point order
+    (the values of one per-cell pass over all the points, bit for bit)."""
+    # per candidate: sums of the offsets from the cell centre (u, v) and of their products
+    # with each other and z, in point order as eq. 1's sums
+    su = np.zeros(candidates)
+    sv = np.zeros(candidates)
+    suu = np.zeros(candidates)
+    svv = np.zeros(candidates)
+    suv = np.zeros(candidates)
+    suz = np.zeros(candidates)
+    svz = np.zeros(candidates)
+    cell_of = np.empty(candidates, np.int64)
+    for c in range(slot.shape[0]):
+        if slot[c] >= 0:
+            cell_of[slot[c]] = c
+    # the candidates' centres (i + 0.5) cell_size along x and y, i the cell's index there (the
+    # cell of _scaled_cell: a point on the far edge belongs to the last cell): a point's offset
+    # u = x - x_min - centre without a floor per point
+    centre_x = np.empty(candidates)
+    centre_y = np.empty(candidates)
+    for s in range(candidates):
+        ix = cell_of[s] // ny
+        centre_x[s] = (ix + 0.5) * cell_size
+        centre_y[s] = (cell_of[s] - ix * ny + 0.5) * cell_size
+    member = np.empty(members, np.int64)  # the candidates' points, in point order
+    j = 0
+    current = -1  # the candidate whose sums are in the a_ registers (the same additions)
+    a_u = a_v = a_uu = a_vv = a_uv = a_uz = a_vz = 0.0
+    cx = cy = 0.0
+    for k in range(cells.shape[0]):
+        c = cells[k]
+        if c < 0:
+            continue
+        s = slot[c]
+        if s < 0:
+            continue
+        if s != current:  # consecutive points mostly share a cell (scan order)
+            if current >= 0:
+                su[current] = a_u
+                sv[current] = a_v
+                suu[current] = a_uu
+                svv[current] = a_vv
+                suv[current] = a_uv
+                suz[current] = a_uz
+                svz[current] = a_vz
+            current = s
+            cx = centre_x[s]
+            cy = centre_y[s]
+            a_u = su[s]
+            a_v = sv[s]
+            a_uu = suu[s]
+            a_vv = svv[s]
+            a_uv = suv[s]
+            a_uz = suz[s]
+            a_vz = svz[s]
+        u = positions[k, 0] - x_min - cx
+        w = positions[k, 1] - y_min - cy
+        v = positions[k, 2]
+        a_u += u
+        a_v += w
+        a_uu += u * u
+        a_vv += w * w
+        a_uv += u * w
+        a_uz += u * v
+        a_vz += w * v
+        member[j] = k
+        j += 1
+    if current >= 0:
+        su[current] = a_u
+        sv[current] = a_v
+        suu[current] = a_uu
+        svv[current] = a_vv
+        suv[current] = a_uv
+        suz[current] = a_uz
+        svz[current] = a_vz
+    # the planes z = mean + gx (u - mean u) + gy (v - mean v); level = its z at u = v = 0
+    grade_x = np.empty(candidates)
+    grade_y = np.empty(candidates)
+    centre = np.empty(candidates)
+    tilts = np.empty(candidates)
+    for s in range(candidates):
+        c = cell_of[s]
+        gx, gy, lv, tl = _cell_plane(count[c], mean[c], su[s], sv[s], suu[s], svv[s], suv[s],
+                                     suz[s], svz[s], cell_size, max_grade)
+        grade_x[s] = gx
+        grade_y[s] = gy
+        centre[s] = lv
+        tilts[s] = tl
+    # the plane's tilt must explain more of the spread than the noise would (an F test of the
+    # slopes) and spread the heights by at least tilt_spread: on level or gently sloping ground
+    # a tilt fitted to noise or to the relief of grass would only lift the sample, and eq. 1's
+    # bias (at most the tilt's spread) stays within the noise the fit allows for; there the
+    # plane is the mean and the sample eq. 1's. The spread the tilt explains comes from the
+    # sums: only the cells it leaves undecided need the residuals (the F test)
+    explained = np.zeros(candidates)
+    undecided = np.zeros(candidates, np.bool_)
+    for s in range(candidates):
+        c = cell_of[s]
+        k = count[c]
+        if state[c] == MEASURED and tilts[s] > 0:
+            inv = 1.0 / k
+            mu = su[s] * inv
+            mv = sv[s] * inv
+            gx = grade_x[s]
+            gy = grade_y[s]
+            explained[s] = k * (gx * gx * (suu[s] * inv - mu * mu)
+                                + 2.0 * gx * gy * (suv[s] * inv - mu * mv)
+                                + gy * gy * (svv[s] * inv - mv * mv))
+            undecided[s] = not explained[s] < k * tilt_spread * tilt_spread
+    least = np.full(candidates, np.inf)  # lowest residual about the plane
+    residual_squares = np.zeros(candidates)
+    for j in range(member.shape[0]):
+        k = member[j]
+        s = slot[cells[k]]
+        if not undecided[s]:
+            continue
+        u = positions[k, 0] - x_min - centre_x[s]
+        w = positions[k, 1] - y_min - centre_y[s]
+        r = positions[k, 2] - centre[s] - grade_x[s] * u - grade_y[s] * w
+        residual_squares[s] += r * r
+        least[s] = min(least[s], r)
+    for s in range(candidates):
+        c = cell_of[s]
+        k = count[c]
+        level[c] = centre[s]
+        if state[c] == MEASURED and tilts[s] > 0 and (
+                not undecided[s] or explained[s] / tilts[s] * (k - 1.0 - tilts[s])
+                < PLANE_SIGNIFICANCE * residual_squares[s]):
+            tilts[s] = 0.0
+            level[c] = mean[c]
+        if state[c] == MEASURED and tilts[s] > 0:
+            # the residuals' spread with the degrees of freedom the plane took from them (1 for
+            # the mean, ``tilts`` for the slopes) given back, in eq. 1's convention (sigma^2 =
+            # squares / k, i.e. (k - 1) / k of the unbiased variance): on level ground the
+            # same spread as eq. 1's in expectation, on a slope without the rise across it
+            spread = residual_squares[s] / (k - 1.0 - tilts[s]) * (k - 1.0) / k
+            plane_sample[c] = level[c] + max(least[s], -math.sqrt(spread))
+
+
+@numba.njit(cache=True)
 def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0,
              inverse=0.0, plane=False, max_grade=1.0, tilt_spread=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
@@ -142,11 +314,14 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     (``plane_sample``), s the residuals' spread with the plane's degrees of freedom given
     back; the cell's mean and Z where it has fewer than :data:`PLANE_MIN_POINTS` points, the
     tilt fails the F test of :data:`PLANE_SIGNIFICANCE` or it spreads the points' heights by
-    less than ``tilt_spread`` (m, root mean square over the points). From sums gathered in the
-    same two passes over the points (empty arrays otherwise).
+    less than ``tilt_spread`` (m, root mean square over the points). The planes' sums are
+    gathered only for the cells that can pass those tests (:func:`_plane_candidates`), in a
+    third pass over the points, and the residuals for the F test only for the cells whose
+    tilt passes the tilt_spread test, in a fourth over their points (:func:`_candidate_planes`;
+    empty arrays without ``plane``).
 
     Each point's cell is :func:`_cell`, found in the first pass over the points and kept for
-    the second (no separate pass). ``inverse`` > 0 must be exactly 1 / cell_size (a power of
+    the later passes. ``inverse`` > 0 must be exactly 1 / cell_size (a power of
     two cell size): the coordinates are then scaled by a multiplication, which gives the
     quotient bit for bit. Points with a non-finite x, y or z, or outside the grid, are
     skipped and counted: the result ends with (number non-finite, number outside the grid).
@@ -165,16 +340,6 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     highest = np.full(m, -np.inf)
     nonfinite = 0
     outside = 0
-    mp = m if plane else 0
-    # plane sums: offsets from the cell centre (u, v) and their products with each other and z
-    su = np.zeros(mp)
-    sv = np.zeros(mp)
-    suu = np.zeros(mp)
-    svv = np.zeros(mp)
-    suv = np.zeros(mp)
-    suz = np.zeros(mp)
-    svz = np.zeros(mp)
-    offsets = np.empty((n if plane else 0, 2))  # (u, v) of each point, kept for the 2nd pass
     for k in range(n):
         if inverse > 0.0:
             c = _scaled_cell((positions[k, 0] - x_min) * inverse,
@@ -194,37 +359,10 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         total[c] += v
         lowest[c] = min(lowest[c], v)  # branch-free (cells hold few points: branches mispredict)
         highest[c] = max(highest[c], v)
-        if plane:
-            u = _offset(positions[k, 0] - x_min, cell_size, inverse, nx)
-            w = _offset(positions[k, 1] - y_min, cell_size, inverse, ny)
-            offsets[k, 0] = u
-            offsets[k, 1] = w
-            su[c] += u
-            sv[c] += w
-            suu[c] += u * u
-            svv[c] += w * w
-            suv[c] += u * w
-            suz[c] += u * v
-            svz[c] += w * v
     mean = np.zeros(m)
     for c in range(m):
         if count[c] > 0:
             mean[c] = total[c] / count[c]
-    # the cells' planes z = mean + gx (u - mean u) + gy (v - mean v); level = its z at u = v = 0
-    grade_x = np.zeros(mp)
-    grade_y = np.zeros(mp)
-    level = np.zeros(mp)
-    tilts = np.zeros(mp)
-    for c in range(mp):
-        if count[c] > 0:
-            gx, gy, lv, tl = _cell_plane(count[c], mean[c], su[c], sv[c], suu[c], svv[c],
-                                         suv[c], suz[c], svz[c], cell_size, max_grade)
-            grade_x[c] = gx
-            grade_y[c] = gy
-            level[c] = lv
-            tilts[c] = tl
-    least = np.full(mp, np.inf)  # lowest residual about the plane
-    residual_squares = np.zeros(mp)
     squares = np.zeros(m)
     use_layer = layer > 0.0
     layer_count = np.zeros(m if use_layer else 0, np.int64)
@@ -237,10 +375,6 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
         v = positions[k, 2]
         d = v - mean[c]
         squares[c] += d * d
-        if plane:
-            r = v - level[c] - grade_x[c] * offsets[k, 0] - grade_y[c] * offsets[k, 1]
-            residual_squares[c] += r * r
-            least[c] = min(least[c], r)
         if use_layer:
             if v <= lowest[c] + layer:
                 layer_count[c] += 1
@@ -248,7 +382,6 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
             else:
                 layer_above[c] = min(layer_above[c], v)
     height = np.zeros(m)
-    plane_sample = np.zeros(mp)
     state = np.zeros(m, np.uint8)
     for c in range(m):
         if count[c] >= min_points and count[c] > 0:
@@ -276,36 +409,18 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
                 if n > 0:
                     height[c] = acc / n
                     state[c] = FILLED
-    for c in range(mp):  # eq. 1's sample where the plane has too few points or none
-        k = count[c]
-        if state[c] == MEASURED and k >= PLANE_MIN_POINTS and tilts[c] > 0:
-            # the plane's tilt must explain more of the spread than the noise would (an F test
-            # of the slopes) and spread the heights by at least tilt_spread: on level or gently
-            # sloping ground a tilt fitted to noise or to the relief of grass would only lift
-            # the sample, and eq. 1's bias (at most the tilt's spread) stays within the noise
-            # the fit allows for; there the plane is the mean and the sample eq. 1's
-            inv = 1.0 / k
-            mu = su[c] * inv
-            mv = sv[c] * inv
-            gx = grade_x[c]
-            gy = grade_y[c]
-            explained = k * (gx * gx * (suu[c] * inv - mu * mu)
-                             + 2.0 * gx * gy * (suv[c] * inv - mu * mv)
-                             + gy * gy * (svv[c] * inv - mv * mv))
-            if (explained / tilts[c] * (k - 1.0 - tilts[c])
-                    < PLANE_SIGNIFICANCE * residual_squares[c]
-                    or explained < k * tilt_spread * tilt_spread):
-                tilts[c] = 0.0
-                level[c] = mean[c]
-        if state[c] == MEASURED and k >= PLANE_MIN_POINTS and tilts[c] > 0:
-            # the residuals' spread with the degrees of freedom the plane took from them (1 for
-            # the mean, ``tilts`` for the slopes) given back, in eq. 1's convention (sigma^2 =
-            # squares / k, i.e. (k - 1) / k of the unbiased variance): on level ground the
-            # same spread as eq. 1's in expectation, on a slope without the rise across it
-            spread = residual_squares[c] / (k - 1.0 - tilts[c]) * (k - 1.0) / k
-            plane_sample[c] = level[c] + max(least[c], -math.sqrt(spread))
-        else:
-            plane_sample[c] = height[c]
+    # the cells whose plane can pass its tests, each with a slot in compact per-candidate
+    # arrays (the other cells' results need no plane: _plane_candidates)
+    slot, candidates, members = _plane_candidates(count, squares, min_points,
+                                                  tilt_spread, plane)
+    mp = m if plane else 0
+    # cells without a candidate plane: the mean (0 without points) and eq. 1's sample
+    level = mean[:mp].copy()
+    plane_sample = height[:mp].copy()
+    if candidates > 0:
+        _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
+                          cell_size, ny, count, state, mean, max_grade, tilt_spread, level,
+                          plane_sample)
     return (
         height.reshape(nx, ny),
         count.reshape(nx, ny),
