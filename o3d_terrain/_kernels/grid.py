@@ -153,6 +153,20 @@ def _plane_candidates(count, squares, min_points, tilt_spread, plane):
     return slot, candidates, members
 
 
+@numba.njit(cache=True, inline="always")
+def _store_plane_sums(su, sv, suu, svv, suv, suz, svz, s, a_u, a_v, a_uu, a_vv, a_uv, a_uz,
+                      a_vz):
+    """Write the seven running plane sums of candidate ``s`` (held in registers by
+    :func:`_candidate_planes`) back into their arrays."""
+    su[s] = a_u
+    sv[s] = a_v
+    suu[s] = a_uu
+    svv[s] = a_vv
+    suv[s] = a_uv
+    suz[s] = a_uz
+    svz[s] = a_vz
+
+
 @numba.njit(cache=True)
 def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min, cell_size,
                       ny, count, state, mean, max_grade, tilt_spread, level, plane_sample):
@@ -199,13 +213,8 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
             continue
         if s != current:  # consecutive points mostly share a cell (scan order)
             if current >= 0:
-                su[current] = a_u
-                sv[current] = a_v
-                suu[current] = a_uu
-                svv[current] = a_vv
-                suv[current] = a_uv
-                suz[current] = a_uz
-                svz[current] = a_vz
+                _store_plane_sums(su, sv, suu, svv, suv, suz, svz, current, a_u, a_v, a_uu,
+                                  a_vv, a_uv, a_uz, a_vz)
             current = s
             cx = centre_x[s]
             cy = centre_y[s]
@@ -229,13 +238,8 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
         member[j] = k
         j += 1
     if current >= 0:
-        su[current] = a_u
-        sv[current] = a_v
-        suu[current] = a_uu
-        svv[current] = a_vv
-        suv[current] = a_uv
-        suz[current] = a_uz
-        svz[current] = a_vz
+        _store_plane_sums(su, sv, suu, svv, suv, suz, svz, current, a_u, a_v, a_uu, a_vv,
+                          a_uv, a_uz, a_vz)
     # the planes z = mean + gx (u - mean u) + gy (v - mean v); level = its z at u = v = 0
     grade_x = np.empty(candidates)
     grade_y = np.empty(candidates)
