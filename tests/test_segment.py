@@ -242,9 +242,10 @@ def test_stages_write_declared_products_and_attributes():
 
 
 def test_segment_terrain_equals_the_stage_chain():
+    # with every option at its default on both sides: a pipeline labels as the function does
     pts, _ = scene(4, n=8_000)
     surface, inliers = segment_terrain(pts, cell_size=0.5)
-    frame = Segmenter(threshold=None)(RationalBSplineTerrain()(GridQuantize(cell_size=0.5)(pts)))
+    frame = Segmenter()(RationalBSplineTerrain()(GridQuantize(cell_size=0.5)(pts)))
     np.testing.assert_array_equal(
         inliers, np.flatnonzero(frame.attribute(LABELS) == TerrainLabel.TERRAIN))
     np.testing.assert_array_equal(surface.control_points,
