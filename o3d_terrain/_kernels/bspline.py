@@ -479,18 +479,39 @@ def cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy):
 
 
 @numba.njit(cache=True, inline="always")
+def _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy):
+    """(start of its coefficients, u, v) of the span pair holding local (px, py) on uniform
+    knots: one multiplication and truncation per axis, clamped to the end spans (which points
+    outside the knot range extrapolate); (u, v) local to the span pair
+    (:func:`cubic_span_coefficients`)."""
+    fx = (px - low_x) * inv_wx
+    fy = (py - low_y) * inv_wy
+    ix = min(max(int(fx), 0), nsx - 1)
+    iy = min(max(int(fy), 0), nsy - 1)
+    return (ix * nsy + iy) * 32, fx - ix, fy - iy
+
+
+@numba.njit(cache=True, inline="always")
+def _cubic_span_rows(c, b, v):
+    """The 8 polynomials in v of a span pair whose coefficients start at ``c[b]``
+    (:func:`cubic_span_coefficients`): A's rows u^0..u^3, then D's, by Horner on contiguous
+    coefficients."""
+    return (((c[b + 24] * v + c[b + 16]) * v + c[b + 8]) * v + c[b],
+            ((c[b + 25] * v + c[b + 17]) * v + c[b + 9]) * v + c[b + 1],
+            ((c[b + 26] * v + c[b + 18]) * v + c[b + 10]) * v + c[b + 2],
+            ((c[b + 27] * v + c[b + 19]) * v + c[b + 11]) * v + c[b + 3],
+            ((c[b + 28] * v + c[b + 20]) * v + c[b + 12]) * v + c[b + 4],
+            ((c[b + 29] * v + c[b + 21]) * v + c[b + 13]) * v + c[b + 5],
+            ((c[b + 30] * v + c[b + 22]) * v + c[b + 14]) * v + c[b + 6],
+            ((c[b + 31] * v + c[b + 23]) * v + c[b + 15]) * v + c[b + 7])
+
+
+@numba.njit(cache=True, inline="always")
 def _cubic_span_ratio(c, b, u, v):
     """A / D at local (u, v) of a span pair whose coefficients start at ``c[b]``
-    (:func:`cubic_span_coefficients`): the 8 polynomials in v (A's and D's rows u^0..u^3, the
-    same operations on contiguous coefficients), then A and D in u, all by Horner."""
-    r0 = ((c[b + 24] * v + c[b + 16]) * v + c[b + 8]) * v + c[b]
-    r1 = ((c[b + 25] * v + c[b + 17]) * v + c[b + 9]) * v + c[b + 1]
-    r2 = ((c[b + 26] * v + c[b + 18]) * v + c[b + 10]) * v + c[b + 2]
-    r3 = ((c[b + 27] * v + c[b + 19]) * v + c[b + 11]) * v + c[b + 3]
-    d0 = ((c[b + 28] * v + c[b + 20]) * v + c[b + 12]) * v + c[b + 4]
-    d1 = ((c[b + 29] * v + c[b + 21]) * v + c[b + 13]) * v + c[b + 5]
-    d2 = ((c[b + 30] * v + c[b + 22]) * v + c[b + 14]) * v + c[b + 6]
-    d3 = ((c[b + 31] * v + c[b + 23]) * v + c[b + 15]) * v + c[b + 7]
+    (:func:`cubic_span_coefficients`): the 8 polynomials in v (:func:`_cubic_span_rows`), then
+    A and D in u, all by Horner."""
+    r0, r1, r2, r3, d0, d1, d2, d3 = _cubic_span_rows(c, b, v)
     return (((r3 * u + r2) * u + r1) * u + r0) / (((d3 * u + d2) * u + d1) * u + d0)
 
 
@@ -498,16 +519,9 @@ def _cubic_span_ratio(c, b, u, v):
 def _cubic_span_gradient(c, b, u, v):
     """(dS/du, dS/dv) at local (u, v) of a span pair whose coefficients start at ``c[b]``
     (:func:`cubic_span_coefficients`) by the quotient rule S_u = (A_u - S D_u) / D: the 8
-    polynomials in v and their v derivatives, then A, D and their derivatives in u, by Horner.
-    Equals the derivative of the B-spline sums up to rounding."""
-    r0 = ((c[b + 24] * v + c[b + 16]) * v + c[b + 8]) * v + c[b]
-    r1 = ((c[b + 25] * v + c[b + 17]) * v + c[b + 9]) * v + c[b + 1]
-    r2 = ((c[b + 26] * v + c[b + 18]) * v + c[b + 10]) * v + c[b + 2]
-    r3 = ((c[b + 27] * v + c[b + 19]) * v + c[b + 11]) * v + c[b + 3]
-    d0 = ((c[b + 28] * v + c[b + 20]) * v + c[b + 12]) * v + c[b + 4]
-    d1 = ((c[b + 29] * v + c[b + 21]) * v + c[b + 13]) * v + c[b + 5]
-    d2 = ((c[b + 30] * v + c[b + 22]) * v + c[b + 14]) * v + c[b + 6]
-    d3 = ((c[b + 31] * v + c[b + 23]) * v + c[b + 15]) * v + c[b + 7]
+    polynomials in v (:func:`_cubic_span_rows`) and their v derivatives, then A, D and their
+    derivatives in u, by Horner. Equals the derivative of the B-spline sums up to rounding."""
+    r0, r1, r2, r3, d0, d1, d2, d3 = _cubic_span_rows(c, b, v)
     q0 = (3.0 * c[b + 24] * v + 2.0 * c[b + 16]) * v + c[b + 8]
     q1 = (3.0 * c[b + 25] * v + 2.0 * c[b + 17]) * v + c[b + 9]
     q2 = (3.0 * c[b + 26] * v + 2.0 * c[b + 18]) * v + c[b + 10]
@@ -574,11 +588,8 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
                 out[k] = np.nan
                 continue
             if p == 3:
-                fx = (px - low_x) * inv_wx
-                fy = (py - low_y) * inv_wy
-                ix = min(max(int(fx), 0), nsx - 1)
-                iy = min(max(int(fy), 0), nsy - 1)
-                s = _cubic_span_ratio(coef, (ix * nsy + iy) * 32, fx - ix, fy - iy)
+                b, u, v = _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy)
+                s = _cubic_span_ratio(coef, b, u, v)
             else:
                 s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
                                  bx, by, left, right)
@@ -753,11 +764,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         factor = 1.0
         if xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y:
             if p == 3:
-                fx = (xk - low_x) * inv_wx
-                fy = (yk - low_y) * inv_wy
-                ix = min(max(int(fx), 0), nsx - 1)
-                iy = min(max(int(fy), 0), nsy - 1)
-                su, sv = _cubic_span_gradient(coef, (ix * nsy + iy) * 32, fx - ix, fy - iy)
+                b, u, v = _cubic_span_at(xk, yk, low_x, low_y, inv_wx, inv_wy, nsx, nsy)
+                su, sv = _cubic_span_gradient(coef, b, u, v)
                 gx = su * inv_wx
                 gy = sv * inv_wy
             else:
