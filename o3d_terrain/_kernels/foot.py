@@ -63,6 +63,14 @@ def _find(table, shift, mask, key, insert):
 
 
 @numba.njit(cache=True)
+def _screen_bit(key):
+    """(word, bit mask) of ``key`` in a one-bit-per-hash screen of 1024 uint64 words: the
+    top 16 bits of its Fibonacci hash (as :func:`_find` hashes) pick one of 65,536 bits."""
+    b = (np.uint64(key) * _MIX) >> np.uint64(48)
+    return b >> np.uint64(6), np.uint64(1) << (b & np.uint64(63))
+
+
+@numba.njit(cache=True)
 def _candidate(k, positions, heights, labels, obstacle, foot_height):
     h = heights[k]
     return (labels[k] == obstacle and h < foot_height and math.isfinite(h)
@@ -143,8 +151,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
         key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
         if key >= 0:
             s = _find(columns, shift, mask, key, True)
-            b = (np.uint64(key) * _MIX) >> np.uint64(48)
-            screen[b >> np.uint64(6)] |= np.uint64(1) << (b & np.uint64(63))
+            word, bit = _screen_bit(key)
+            screen[word] |= bit
             marks[s] += 1
             top[s] = max(top[s], heights[k])
             bottom[s] = min(bottom[s], heights[k])
@@ -156,8 +164,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
         if labels[k] == terrain:
             key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
             if key >= 0:
-                b = (np.uint64(key) * _MIX) >> np.uint64(48)
-                if (screen[b >> np.uint64(6)] >> (b & np.uint64(63))) & np.uint64(1) == 0:
+                word, bit = _screen_bit(key)
+                if screen[word] & bit == 0:
                     continue
                 s = _find(columns, shift, mask, key, False)
                 if s >= 0:
