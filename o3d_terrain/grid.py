@@ -199,7 +199,8 @@ def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,
     """``grid`` with the cells' planes (``level``, ``plane_sample``; ``tilt_spread`` as in
     :func:`quantize_points`) of ``positions``, the points it was made from, gathered by a
     second quantization over its cells (its ``plane_sample`` is eq. 1's ``z`` wherever the
-    grid's own cell is not MEASURED)."""
+    grid's own cell is not MEASURED); ``grid`` itself when it already carries planes made
+    with this ``tilt_spread``."""
     if (grid.plane_sample is not None and grid.level is not None
             and grid.tilt_spread == tilt_spread):
         return grid

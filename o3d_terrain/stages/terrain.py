@@ -109,8 +109,7 @@ class RationalBSplineTerrain(Stage):
         the grid's cell size."""
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
-        if self.cell_plane and (grid.plane_sample is None
-                                or grid.tilt_spread != self.noise_floor):
+        if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         fit = fit_grid_detailed(
             grid, control_points=self.control_points, degree=self.degree,
