@@ -479,6 +479,14 @@ def cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy):
 
 
 @numba.njit(cache=True, inline="always")
+def _knot_range(knots_x, knots_y, tol_x, tol_y):
+    """(lo_x, hi_x, lo_y, hi_y): the knot range widened by the tolerances, where the surface
+    is evaluated (outside: NaN, or no normal factor)."""
+    return (knots_x[0] - tol_x, knots_x[knots_x.shape[0] - 1] + tol_x,
+            knots_y[0] - tol_y, knots_y[knots_y.shape[0] - 1] + tol_y)
+
+
+@numba.njit(cache=True, inline="always")
 def _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy):
     """(start of its coefficients, u, v) of the span pair holding local (px, py) on uniform
     knots: one multiplication and truncation per axis, clamped to the end spans (which points
@@ -645,10 +653,7 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
     dzdy = np.empty(n) if with_derivatives else np.empty(0)
     inv_wx = _inverse_span_width(n0, p, knots_x)
     inv_wy = _inverse_span_width(n1, p, knots_y)
-    lo_x = knots_x[0] - tol_x
-    hi_x = knots_x[knots_x.shape[0] - 1] + tol_x
-    lo_y = knots_y[0] - tol_y
-    hi_y = knots_y[knots_y.shape[0] - 1] + tol_y
+    lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
     for c in numba.prange(n_chunks):
@@ -717,10 +722,7 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
     n1 = control.shape[1]
     inv_wx = _inverse_span_width(n0, p, knots_x)
     inv_wy = _inverse_span_width(n1, p, knots_y)
-    lo_x = knots_x[0] - tol_x
-    hi_x = knots_x[knots_x.shape[0] - 1] + tol_x
-    lo_y = knots_y[0] - tol_y
-    hi_y = knots_y[knots_y.shape[0] - 1] + tol_y
+    lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
     nsx = n0 - p
     nsy = n1 - p
     low_x = knots_x[p]
