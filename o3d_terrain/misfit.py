@@ -206,7 +206,9 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     cells count, the points of the block and of its 8 neighbours get min(t, high) (the largest
     such), elsewhere ``threshold``.
 
-    grade: optional callable (x, y) -> |grad S| (the surface's tangent of slope) at the points;
+    grade: optional callable (x, y) -> |grad S| (the surface's tangent of slope) at the points
+        (:func:`o3d_terrain.segment.segment_points` measures it from the ground under the
+        sensor, so that a sensor's tilt does not count as slope);
     with it, the points of widened blocks get at least min(threshold + ``reach`` x |grad S|,
     ``high``): terrain detail the surface cannot follow lies up to ``reach`` (default half a
     control spacing, :data:`MISFIT_REACH` x block / :data:`MISFIT_BLOCK`) away from where the

@@ -31,8 +31,8 @@ from .misfit import block_size, widened_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_threshold", "heights_above_terrain", "label_heights",
-           "mark_object_feet", "relabel_along_normal", "segment_points", "thresholds",
-           "widen_labels"]
+           "mark_object_feet", "relabel_along_normal", "segment_points",
+           "sensor_ground_gradient", "thresholds", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m.
 #: The floor covers the terrain's own relief inside a cell, which the surface of 0.5 m cells
@@ -59,6 +59,13 @@ FOOT_RISE = 0.1
 #: the height (m) above the terrain of an obstacle point that shows an object stands at a
 #: column (in it or one of its 8 neighbours)
 FOOT_OBJECT = 0.35
+
+
+#: the misfit's slope term measures slope against the ground under the sensor: the terrain
+#: points (|h| <= threshold) within this horizontal distance (m) of ``sensor_origin`` ...
+SENSOR_GROUND_RADIUS = 15.0
+#: ... when at least this many of them lie there (otherwise against the cloud's z axis)
+SENSOR_GROUND_MIN_POINTS = 100
 
 
 class TerrainLabel(IntEnum):
@@ -118,6 +125,46 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
     return float(np.clip(factor * noise, low, high))
 
 
+def sensor_ground_gradient(surface: TerrainSurface, positions, heights: np.ndarray,
+                           threshold: float, sensor_origin=(0.0, 0.0, 0.0), *,
+                           radius: float = SENSOR_GROUND_RADIUS,
+                           min_points: int = SENSOR_GROUND_MIN_POINTS) -> tuple[float, float]:
+    """The surface's gradient (dz/dx, dz/dy) under the sensor: the median over the terrain
+    points (|height| <= ``threshold``) within ``radius`` m of ``sensor_origin`` (x, y), or
+    (0, 0) when fewer than ``min_points`` valid ones lie there (a sensor outside the cloud, as
+    for an airborne tile, or without ground around it).
+
+    A vehicle's sensor stands on the ground it scans, so this is its tilt against that ground
+    (pitch and roll, plus the slope the vehicle stands on): the misfit's slope term measures
+    slope from it, which makes the labels of a tilted sensor those of a level one on the
+    same scene (docs/algorithm.md, "Slope from the ground under the sensor")."""
+    p = _positions(positions)
+    h = np.asarray(heights, dtype=np.float64)
+    d2 = (p[:, 0] - sensor_origin[0]) ** 2 + (p[:, 1] - sensor_origin[1]) ** 2
+    near = np.flatnonzero((d2 <= radius * radius) & (np.abs(h) <= threshold))
+    if near.size < min_points:
+        return 0.0, 0.0
+    gx, gy = surface.gradient(p[near, 0], p[near, 1])
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    if np.count_nonzero(ok) < min_points:
+        return 0.0, 0.0
+    return float(np.median(gx[ok])), float(np.median(gy[ok]))
+
+
+def _grade_from_sensor_ground(surface: TerrainSurface, p: np.ndarray, h: np.ndarray,
+                              threshold: float, sensor_origin):
+    """The misfit's ``grade`` callable: |grad S - g0| at (x, y), g0 the
+    :func:`sensor_ground_gradient` (found on the first call: only when a block is widened)."""
+    tilt = []
+
+    def grade(x, y):
+        if not tilt:
+            tilt.extend(sensor_ground_gradient(surface, p, h, threshold, sensor_origin))
+        gx, gy = surface.gradient(x, y)
+        return np.hypot(gx - tilt[0], gy - tilt[1])
+    return grade
+
+
 def segment_points(surface: TerrainSurface, positions, *, threshold: float | None = 0.2,
                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
                    sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
@@ -130,7 +177,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     below_threshold: points lower than this below the surface are BELOW_TERRAIN noise (m).
     range_coefficient: growth of the threshold with horizontal range squared (1/m), for
         stereo clouds; 0 = constant threshold.
-    sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates).
+    sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates), and where the
+        misfit's slope term takes level from (:func:`sensor_ground_gradient`).
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
         local misfit to the ground exceeds the noise (:mod:`o3d_terrain.misfit`).
     along_normal: measure both thresholds along the surface normal instead of vertically
@@ -160,7 +208,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         threshold = auto_threshold(h)
         if misfit and isinstance(surface, TerrainSurface):
             local = widened_thresholds(p, h, threshold, block=block_size(surface),
-                                       grade=lambda x, y: np.hypot(*surface.gradient(x, y)))
+                                       grade=_grade_from_sensor_ground(surface, p, h, threshold,
+                                                                       sensor_origin))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin)
     if local is not None and local.max(initial=threshold) > threshold:

@@ -132,3 +132,30 @@ def test_widened_thresholds_is_none_exactly_when_no_point_is_widened():
         assert (got is not None) == widened == bool((full > 0.1).any())
         if got is not None:
             np.testing.assert_array_equal(got, full)
+
+
+def test_slope_term_measures_slope_from_the_ground_under_the_sensor(rng):
+    """segment_points' slope term takes level from the surface under the sensor: on a plane
+    pitched 10° around the sensor (a tilted sensor on level ground) the grade is ~0 and the
+    gradient found is the tilt; a sensor outside the cloud (an airborne tile) or without
+    enough ground around it keeps the cloud's z axis as level."""
+    from o3d_terrain.api import fit_terrain
+    from o3d_terrain.segment import _grade_from_sensor_ground, sensor_ground_gradient
+
+    n = 40_000
+    x, y = rng.uniform(-40, 40, n), rng.uniform(-30, 30, n)
+    tilt = np.tan(np.radians(10.0))
+    z = tilt * x + 0.05 * np.sin(x / 3.0) * np.cos(y / 4.0) + rng.normal(0, 0.02, n)
+    positions = np.column_stack([x, y, z])
+    surface = fit_terrain(positions)
+    h = surface.heights_above(positions)
+    gx, gy = sensor_ground_gradient(surface, positions, h, 0.2)
+    assert abs(gx - tilt) < 0.01 and abs(gy) < 0.01
+    grade = _grade_from_sensor_ground(surface, positions, h, 0.2, (0.0, 0.0, 0.0))
+    assert np.all(grade(x[:1000], y[:1000]) < 0.05)
+    # outside the cloud, or fewer than the least number of ground points within the radius
+    assert sensor_ground_gradient(surface, positions, h, 0.2, (500.0, 0.0, 0.0)) == (0.0, 0.0)
+    assert sensor_ground_gradient(surface, positions, h, 0.2, min_points=n + 1) == (0.0, 0.0)
+    far = _grade_from_sensor_ground(surface, positions, h, 0.2, (500.0, 0.0, 0.0))
+    np.testing.assert_allclose(far(x[:1000], y[:1000]),
+                               np.hypot(*surface.gradient(x[:1000], y[:1000])))
