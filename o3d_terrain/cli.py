@@ -54,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
     describe = sub.add_parser("describe", help="options of a stage or writer")
     describe.add_argument("name")
     describe.add_argument("--markdown", action="store_true", help="print the docs page")
+    sub.add_parser("warmup", help="compile and cache the numba kernels now (once per install "
+                                  "and machine) instead of on the first call")
 
     try:  # evaluation commands (o3d_terrain.evaluation)
         from .evaluation.commands import add_eval_commands
@@ -84,6 +86,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return EXIT_OK
         if args.command == "describe":
             return _describe(args)
+        if args.command == "warmup":
+            from .warmup import warm_up
+
+            print(warm_up().summary())
+            return EXIT_OK
         if hasattr(args, "handler"):
             return int(args.handler(args) or 0)
     except ConfigError as exc:
