@@ -38,7 +38,7 @@ print(json.dumps({"grown": grown, "ready": len(report.ready), "cache": report.ca
 def test_after_warm_up_the_default_paths_need_no_new_kernel_code(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     done = subprocess.run([sys.executable, "-c", _PROBE, str(tmp_path)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=900)
+                          capture_output=True, text=True, timeout=900, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["grown"] == [], f"kernels warm_up does not reach: {result['grown']}"
