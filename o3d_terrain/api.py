@@ -220,7 +220,12 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     0.15 m x/y column that also holds obstacle points less than this high above the terrain
     (above the local noise, 30 % or more of the column, with an object at least 0.35 m high
     in it or beside it) are the foot of that object (a bush, a wall, a wheel) and not
-    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). Other options as in
+    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). ``sensor_origin``: where
+    the sensor is in the cloud's coordinates (the default (0, 0, 0) is a cloud in the sensor's
+    own frame; give it for a scan moved into a map or world frame): the range of the
+    thresholds and of ``range_noise``, and the ground around it defines level for the misfit's
+    slope term, so that a tilted sensor is labelled as a level one
+    (:func:`o3d_terrain.segment.sensor_ground_gradient`). Other options as in
     :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
