@@ -146,10 +146,11 @@ def fit_grid_detailed(
     terrain_prior: (robust) slope-limited connectivity to the lowest cells
         (:func:`terrain_prior_mask`): connected compact cells (enough points, no vertical
         extent beyond the terrain's rise across the cell) above the surface get a noise
-        threshold widened by half that rise, and are not equalized, so steep narrow terrain
-        such as a berm is not rejected as an obstacle; their sample is max(eq. 1, mean z -
-        noise_floor) (all their points are terrain) when the grid carries the mean
-        (docs/algorithm.md). With ``positions`` and ``ground_layer``, connected cells whose
+        threshold widened by half the rise to their compact neighbours
+        (:func:`o3d_terrain._kernels.ground.compact_rise`), and are not equalized, so steep
+        narrow terrain such as a berm is not rejected as an obstacle; their sample is
+        max(eq. 1, mean z - noise_floor) (all their points are terrain) when the grid carries
+        the mean (docs/algorithm.md). With ``positions`` and ``ground_layer``, connected cells whose
         sample is their ground layer, with nothing lower around them and any points above
         the layer at least :data:`o3d_terrain.ground_layer.OVERHANG_CLEARANCE` higher (ground
         under a canopy, :func:`o3d_terrain.ground_layer.overhung_ground_cells`) get the same
@@ -241,11 +242,18 @@ def fit_grid_detailed(
         prior = None
         compact = np.zeros((0, 0), bool)
         if terrain_prior:
-            connected, compact, rise = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
-                                                      max_obstacle_width, 3.0 * noise_floor)
+            connected, compact, _ = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
+                                                   max_obstacle_width, 3.0 * noise_floor)
             # compact cells above the surface: threshold widened by half the terrain's rise
-            # across one cell (what a control grid of about 2 cells' spacing cannot follow)
-            protected, spread = compact, 0.5 * rise
+            # across one cell (what a control grid of about 2 cells' spacing cannot follow),
+            # that rise measured to compact neighbours only: a wall or a bush face next to
+            # the cell is no evidence that the terrain climbs (docs/algorithm.md, "Sparse
+            # scanners")
+            low = np.where(compact, grid.lowest if grid.lowest is not None else grid.z, 0.0)
+            spread = 0.5 * _ground.compact_rise(
+                np.ascontiguousarray(low, dtype=np.float64), compact, float(grid.cell_size),
+                math.tan(math.radians(max_slope_deg)))
+            protected = compact
             if use_layer and grid.highest is not None:
                 # ground under a canopy: connected cells whose sample is their ground layer,
                 # nothing lower around them and a free gap above (docs/algorithm.md, "Ground

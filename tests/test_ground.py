@@ -7,7 +7,7 @@ import pytest
 from naive import above_slope_cone, cone_fill
 
 from o3d_terrain._kernels.ground import (below_compact_neighbours,
-                                         compact_cells, prior_seeds,
+                                         compact_cells, compact_rise, prior_seeds,
                                          steepest_neighbour_slope, window_min)
 
 
@@ -74,6 +74,30 @@ def test_compact_cells_matches_its_definition(rng, use_highest):
     expected = dense | below_compact_neighbours(low, sparse, dense, 0.09, 2)
     assert np.array_equal(compact, expected)
     assert dense.any() and (expected & ~dense).any()  # both kinds occur
+
+
+def test_compact_rise_matches_its_definition(rng):
+    # the rise that widens a compact cell: to compact neighbours only, capped; 0 elsewhere
+    shape = (13, 10)
+    low = rng.normal(0, 0.3, shape)
+    compact = rng.uniform(size=shape) < 0.6
+    got = compact_rise(low, compact, 0.5, 1.0)
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            best = 0.0
+            if compact[i, j]:
+                for a in range(max(0, i - 1), min(shape[0], i + 2)):
+                    for b in range(max(0, j - 1), min(shape[1], j + 2)):
+                        if (a, b) != (i, j) and compact[a, b]:
+                            best = max(best, abs(low[a, b] - low[i, j]) / np.hypot(a - i, b - j))
+            assert got[i, j] == pytest.approx(min(best, 0.5))
+    # a compact cell whose only higher neighbour is not compact (a face above it): no rise
+    low = np.zeros((3, 3))
+    low[1, 2] = 0.4
+    compact = np.ones((3, 3), bool)
+    compact[1, 2] = False
+    assert compact_rise(low, compact, 0.5, 1.0)[1, 1] == 0.0
+    assert steepest_neighbour_slope(low, 0.5)[1, 1] == pytest.approx(0.8)
 
 
 @pytest.mark.parametrize("shape", [(23, 17), (1, 6), (6, 1), (40, 33)])

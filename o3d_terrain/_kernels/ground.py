@@ -245,6 +245,49 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
 
 
 @numba.njit(cache=True)
+def compact_rise(low, compact, cell_size, max_rise_slope):
+    """The terrain's rise across each compact cell measured between terrain cells only:
+    cell_size * min(steepest slope from the cell's lowest point to a compact 8-neighbour's,
+    max_rise_slope); 0 on cells that are not compact or have no compact neighbour.
+
+    This is the widening of a compact cell above the surface (half of it: detail a control
+    grid of about two cells' spacing cannot follow). :func:`compact_cells` measures the rise
+    to any measured neighbour, which is right for its own test (a cell next to a wall may
+    hold points up to the wall's foot) but not for the widening: a neighbour that is not
+    compact (a wall, a bush face, a car side) is no evidence that the terrain climbs. On a
+    sparse scan the cell where one ring grazes the base of a bush or a wall is compact (a
+    flat line of points) and its steepest neighbour is the face above it, so it got the
+    widest threshold of the grid and lifted the surface onto the bush (SemanticKITTI at 16
+    scan lines: F1 +0.7 / +0.5 / +0.3 with this rise; docs/algorithm.md, "Sparse scanners").
+    On steep terrain the neighbours are compact themselves and the rise is unchanged."""
+    nx, ny = low.shape
+    out = np.zeros((nx, ny))
+    diagonal = cell_size * _SQRT2
+    for i in range(nx):
+        for j in range(ny):
+            if not compact[i, j]:
+                continue
+            h = low[i, j]
+            straight = 0.0
+            across = 0.0
+            for di in range(-1, 2):
+                a = i + di
+                if a < 0 or a >= nx:
+                    continue
+                for dj in range(-1, 2):
+                    b = j + dj
+                    if b < 0 or b >= ny or (di == 0 and dj == 0) or not compact[a, b]:
+                        continue
+                    if di == 0 or dj == 0:
+                        straight = max(straight, abs(low[a, b] - h))
+                    else:
+                        across = max(across, abs(low[a, b] - h))
+            out[i, j] = cell_size * min(max(straight / cell_size, across / diagonal),
+                                        max_rise_slope)
+    return out
+
+
+@numba.njit(cache=True)
 def _cone_sweep(gap, env, measured, g1, g2, s1, s2, forward):
     """One raster pass of :func:`prior_seeds`, in place: each cell takes the least of its
     value and its already swept neighbours' (the previous row's three, the previous cell in
