@@ -175,7 +175,8 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
     pass over the points (``cells``: each point's cell, < 0 for none) that skips other cells'
     points on their ``slot``, kept in registers while consecutive points stay in one cell;
     :func:`_cell_plane` from the sums; the tilt_spread test from them too; the residuals in
-    one pass over the points of the cells that pass it, for the F test. Sums in point order
+    one pass over the runs of consecutive points in one cell of the cells that pass it (kept
+    by the first pass), for the F test, in registers along a run. Sums in point order
     (the values of one per-cell pass over all the points, bit for bit)."""
     # per candidate: sums of the offsets from the cell centre (u, v) and of their products
     # with each other and z, in point order as eq. 1's sums
@@ -199,8 +200,12 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
         ix = cell_of[s] // ny
         centre_x[s] = (ix + 0.5) * cell_size
         centre_y[s] = (cell_of[s] - ix * ny + 0.5) * cell_size
-    member = np.empty(members, np.int64)  # the candidates' points, in point order
-    j = 0
+    # the candidates' runs of consecutive points in one cell, in point order: points
+    # run_start[r] to run_stop[r] - 1 of candidate run_slot[r]
+    run_start = np.empty(members, np.int64)
+    run_stop = np.empty(members, np.int64)
+    run_slot = np.empty(members, np.int64)
+    runs = 0
     current = -1  # the candidate whose sums are in the a_ registers (the same additions)
     a_u = a_v = a_uu = a_vv = a_uv = a_uz = a_vz = 0.0
     cx = cy = 0.0
@@ -225,6 +230,11 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
             a_uv = suv[s]
             a_uz = suz[s]
             a_vz = svz[s]
+        if runs == 0 or run_slot[runs - 1] != s or run_stop[runs - 1] != k:
+            run_start[runs] = k
+            run_slot[runs] = s
+            runs += 1
+        run_stop[runs - 1] = k + 1
         u = positions[k, 0] - x_min - cx
         w = positions[k, 1] - y_min - cy
         v = positions[k, 2]
@@ -235,8 +245,6 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
         a_uv += u * w
         a_uz += u * v
         a_vz += w * v
-        member[j] = k
-        j += 1
     if current >= 0:
         _store_plane_sums(su, sv, suu, svv, suv, suz, svz, current, a_u, a_v, a_uu, a_vv,
                           a_uv, a_uz, a_vz)
@@ -276,16 +284,25 @@ def _candidate_planes(positions, cells, slot, candidates, members, x_min, y_min,
             undecided[s] = not explained[s] < k * tilt_spread * tilt_spread
     least = np.full(candidates, np.inf)  # lowest residual about the plane
     residual_squares = np.zeros(candidates)
-    for j in range(member.shape[0]):
-        k = member[j]
-        s = slot[cells[k]]
+    for j in range(runs):
+        s = run_slot[j]
         if not undecided[s]:
             continue
-        u = positions[k, 0] - x_min - centre_x[s]
-        w = positions[k, 1] - y_min - centre_y[s]
-        r = positions[k, 2] - centre[s] - grade_x[s] * u - grade_y[s] * w
-        residual_squares[s] += r * r
-        least[s] = min(least[s], r)
+        cx = centre_x[s]
+        cy = centre_y[s]
+        lv = centre[s]
+        gx = grade_x[s]
+        gy = grade_y[s]
+        squares = residual_squares[s]
+        lowest = least[s]
+        for k in range(run_start[j], run_stop[j]):
+            u = positions[k, 0] - x_min - cx
+            w = positions[k, 1] - y_min - cy
+            r = positions[k, 2] - lv - gx * u - gy * w
+            squares += r * r
+            lowest = min(lowest, r)
+        residual_squares[s] = squares
+        least[s] = lowest
     for s in range(candidates):
         c = cell_of[s]
         k = count[c]
