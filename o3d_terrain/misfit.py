@@ -124,9 +124,20 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
     for c in range(nx * ny):
         if count[c] > 0:
             low[c] = total_h[c] / count[c]
+    # the depth bins of the cells below the surface, grouped by block (a counting sort)
     nbins = int(deepest / bin_size) + 1
-    hist = np.zeros((nbx * nby, nbins), np.int64)
     total = np.zeros(nbx * nby, np.int64)
+    for ix in range(nx):
+        bx = ix // per_block
+        for iy in range(ny):
+            if low[ix * ny + iy] <= 0.0:
+                total[bx * nby + iy // per_block] += 1
+    end = np.empty(nbx * nby, np.int64)  # the end of each block's bins, once they are in
+    used = 0
+    for b in range(nbx * nby):
+        used += total[b]
+        end[b] = used - total[b]
+    bins = np.empty(used, np.int64)
     for ix in range(nx):
         bx = ix // per_block
         for iy in range(ny):
@@ -134,19 +145,26 @@ def _block_scales(positions, h, x_min, y_min, cell, nx, ny, per_block, nbx, nby,
             if not v <= 0.0:
                 continue
             b = bx * nby + iy // per_block
-            hist[b, min(int(-v / bin_size), nbins - 1)] += 1
-            total[b] += 1
+            bins[end[b]] = min(int(-v / bin_size), nbins - 1)
+            end[b] += 1
+    # per block the bin where the running count of a histogram of its bins reaches half of
+    # them: one histogram in cache, cleared again at the bins each block set
+    hist = np.zeros(nbins, np.int64)
     out = np.full(nbx * nby, np.nan)
     for b in range(nbx * nby):
         if total[b] < min_cells:
             continue
+        for j in range(end[b] - total[b], end[b]):
+            hist[bins[j]] += 1
         half = (total[b] + 1) // 2
         acc = 0
         for k in range(nbins):
-            acc += hist[b, k]
+            acc += hist[k]
             if acc >= half:
                 out[b] = (k + 0.5) * bin_size
                 break
+        for j in range(end[b] - total[b], end[b]):
+            hist[bins[j]] = 0
     return out
 
 
