@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
+import numba
 import numpy as np
 from scipy.linalg import get_lapack_funcs
 
@@ -169,8 +170,10 @@ class TerrainSurface:
             raise InputError(f"positions must be an (N, 3) array, got shape {p.shape}")
         tol_x, tol_y = self._tolerances()
         x0, y0, z0 = self.origin
-        return _bs.heights_above(p, x0, y0, z0, self.knots_x, self.knots_y, self.degree,
-                                 self.control_points, self.weights, tol_x, tol_y)
+        # one numba thread: the same kernel without the parallel loop (same heights)
+        kernel = _bs.heights_above_serial if numba.get_num_threads() == 1 else _bs.heights_above
+        return kernel(p, x0, y0, z0, self.knots_x, self.knots_y, self.degree,
+                      self.control_points, self.weights, tol_x, tol_y)
 
     def gradient(self, x, y) -> tuple[np.ndarray, np.ndarray]:
         """Analytic first derivatives (dz/dx, dz/dy) by the quotient rule; NaN outside."""

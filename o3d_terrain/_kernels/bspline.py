@@ -548,6 +548,55 @@ def _cubic_span_gradient(c, b, u, v):
     return (a_u - s * d_u) / d, (a_v - s * d_v) / d
 
 
+@numba.njit(cache=True, inline="always")
+def _heights_range(positions, out, first, last, origin_x, origin_y, origin_z, knots_x,
+                   knots_y, p, control, weights, tol_x, tol_y, coef):
+    """The heights of :func:`heights_above` of points first to last - 1 into ``out``
+    (``coef``: :func:`cubic_span_coefficients` for degree 3, else unused)."""
+    kx0 = knots_x[0]
+    kx1 = knots_x[knots_x.shape[0] - 1]
+    ky0 = knots_y[0]
+    ky1 = knots_y[knots_y.shape[0] - 1]
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    inv_wx = _inverse_span_width(n0, p, knots_x)
+    inv_wy = _inverse_span_width(n1, p, knots_y)
+    nsx = n0 - p
+    nsy = n1 - p
+    low_x = knots_x[p]
+    low_y = knots_y[p]
+    bx = np.empty(p + 1)
+    by = np.empty(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    for k in range(first, last):
+        px = positions[k, 0] - origin_x
+        py = positions[k, 1] - origin_y
+        z = positions[k, 2]
+        if not (px >= kx0 - tol_x and px <= kx1 + tol_x and py >= ky0 - tol_y
+                and py <= ky1 + tol_y and math.isfinite(z)):
+            out[k] = np.nan
+            continue
+        if p == 3:
+            b, u, v = _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy)
+            s = _cubic_span_ratio(coef, b, u, v)
+        else:
+            s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
+                             bx, by, left, right)
+        out[k] = (z - origin_z) - s
+
+
+@numba.njit(cache=True, inline="always")
+def _span_coefficients(knots_x, knots_y, degree, control, weights):
+    """:func:`cubic_span_coefficients` of a surface of degree 3, an empty array otherwise."""
+    if degree != 3:
+        return np.empty(0)
+    return cubic_span_coefficients(
+        knots_x, knots_y, control, weights,
+        _inverse_span_width(control.shape[0], 3, knots_x),
+        _inverse_span_width(control.shape[1], 3, knots_y))
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
 def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree, control,
                   weights, tol_x, tol_y):
@@ -561,47 +610,32 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     span (one multiplication and truncation on the uniform knots, clamped to the end spans,
     which points outside the knot range within the tolerance extrapolate), Horner evaluations
     (multiply-adds may be fused) and one division: the value of the B-spline sums up to
-    rounding (1e-15 relative).
+    rounding (1e-15 relative). The per-point code is :func:`_heights_range`, which
+    :func:`heights_above_serial` runs over all the points in one thread.
     """
     n = positions.shape[0]
-    p = degree
     out = np.empty(n)
-    kx0 = knots_x[0]
-    kx1 = knots_x[knots_x.shape[0] - 1]
-    ky0 = knots_y[0]
-    ky1 = knots_y[knots_y.shape[0] - 1]
-    n0 = control.shape[0]
-    n1 = control.shape[1]
-    inv_wx = _inverse_span_width(n0, p, knots_x)
-    inv_wy = _inverse_span_width(n1, p, knots_y)
-    nsx = n0 - p
-    nsy = n1 - p
-    low_x = knots_x[p]
-    low_y = knots_y[p]
-    coef = cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy) \
-        if p == 3 else np.empty(0)
+    coef = _span_coefficients(knots_x, knots_y, degree, control, weights)
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
     for c in numba.prange(n_chunks):
-        bx = np.empty(p + 1)
-        by = np.empty(p + 1)
-        left = np.empty(p + 1)
-        right = np.empty(p + 1)
-        for k in range(c * chunk, min(n, (c + 1) * chunk)):
-            px = positions[k, 0] - origin_x
-            py = positions[k, 1] - origin_y
-            z = positions[k, 2]
-            if not (px >= kx0 - tol_x and px <= kx1 + tol_x and py >= ky0 - tol_y
-                    and py <= ky1 + tol_y and math.isfinite(z)):
-                out[k] = np.nan
-                continue
-            if p == 3:
-                b, u, v = _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy)
-                s = _cubic_span_ratio(coef, b, u, v)
-            else:
-                s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
-                                 bx, by, left, right)
-            out[k] = (z - origin_z) - s
+        _heights_range(positions, out, c * chunk, min(n, (c + 1) * chunk), origin_x,
+                       origin_y, origin_z, knots_x, knots_y, degree, control, weights, tol_x,
+                       tol_y, coef)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath={"contract"})
+def heights_above_serial(positions, origin_x, origin_y, origin_z, knots_x, knots_y, degree,
+                         control, weights, tol_x, tol_y):
+    """:func:`heights_above` in the calling thread, the same per-point code
+    (:func:`_heights_range`) and so the same heights bit for bit: for one numba thread, where
+    the parallel loop's machinery costs about a tenth of the time (3.55 against 3.2 ms on a
+    124,668-point KITTI frame)."""
+    out = np.empty(positions.shape[0])
+    _heights_range(positions, out, 0, positions.shape[0], origin_x, origin_y, origin_z,
+                   knots_x, knots_y, degree, control, weights, tol_x, tol_y,
+                   _span_coefficients(knots_x, knots_y, degree, control, weights))
     return out
 
 
