@@ -17,6 +17,7 @@ import pkgutil
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 __all__ = ["WarmupReport", "kernels", "warm_up"]
@@ -90,6 +91,13 @@ def warm_up() -> WarmupReport:
     segment_terrain(o3d.t.geometry.PointCloud(o3d.core.Tensor(positions)))
     segment_terrain(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions)))
     segment_terrain(_ridged_slope())
+    threads = numba.get_num_threads()
+    if threads > 1:  # some kernels have a serial twin for one thread (heights_above)
+        numba.set_num_threads(1)
+        try:
+            segment_terrain(positions)
+        finally:
+            numba.set_num_threads(threads)
     steps.append("segment_terrain")
     fit_terrain(positions, method="paper")
     steps.append("paper fit")

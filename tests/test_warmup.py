@@ -14,10 +14,12 @@ from o3d_terrain.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 #: in a fresh interpreter: warm up, note each kernel's machine code, then run what users run
-#: (the packaged lidar and stereo pipelines, segment_terrain on another scene and sensor) and
-#: list the kernels that had to compile or load more code after the warm-up
+#: (the packaged lidar and stereo pipelines, segment_terrain on another scene and sensor, on
+#: every numba thread and on one) and list the kernels that had to compile or load more code
+#: after the warm-up
 _PROBE = """
 import json, sys
+import numba
 import numpy as np
 from o3d_terrain.warmup import kernels, warm_up
 from o3d_terrain import segment_terrain
@@ -29,6 +31,8 @@ out = sys.argv[1]
 for name in ("demo.yaml", "stereo_terrain.yaml"):
     load_pipeline("pipelines/" + name).run(output_dir=out + "/" + name)
 cloud = sample_lidar(make_scene("hills", seed=3), tilt_deg=(4.0, -3.0), seed=3)
+segment_terrain(np.asarray(cloud.positions, dtype=np.float64))
+numba.set_num_threads(1)  # one thread takes the serial twins of the parallel kernels
 segment_terrain(np.asarray(cloud.positions, dtype=np.float64))
 grown = sorted(n for n, k in kernels().items() if len(k.overloads) != before.get(n, 0))
 print(json.dumps({"grown": grown, "ready": len(report.ready), "cache": report.cache_dir}))
