@@ -200,7 +200,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
 def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     cell_size: float = 0.5, control_points: Sequence[int] | None = None,
                     degree: int = 3, distance_threshold: float | None = None,
-                    below_threshold: float = 0.5, range_coefficient: float = 0.0,
+                    below_threshold: float = 0.5, range_coefficient: float | None = None,
                     sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
                     smoothing: float = 0.05, terrain_prior: bool = True,
                     range_noise: RangeNoise | float | None = None,
@@ -216,7 +216,11 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
     just below the surface, clipped to [0.13, 0.5] m (:func:`auto_threshold`), widened with
     ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
-    (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). ``foot_height``: terrain points in a
+    (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). ``range_coefficient`` None = from
+    the data with the automatic threshold: it grows with r^2 only where the noise below the
+    surface grows steadily with range, as a stereo camera's does
+    (:func:`o3d_terrain.segment.auto_range_coefficient`; 0 on lidar scans), else 0.
+    ``foot_height``: terrain points in a
     0.15 m x/y column that also holds obstacle points less than this high above the terrain
     (above the local noise, 30 % or more of the column, with an object at least 0.35 m high
     in it or beside it) are the foot of that object (a bush, a wall, a wheel) and not

@@ -30,8 +30,8 @@ from .errors import InputError
 from .misfit import block_size, widened_thresholds
 from .spline import TerrainSurface
 
-__all__ = ["TerrainLabel", "auto_threshold", "heights_above_terrain", "label_heights",
-           "mark_object_feet", "relabel_along_normal", "segment_points",
+__all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
+           "label_heights", "mark_object_feet", "relabel_along_normal", "segment_points",
            "sensor_ground_gradient", "thresholds", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m.
@@ -60,6 +60,19 @@ FOOT_RISE = 0.1
 #: column (in it or one of its 8 neighbours)
 FOOT_OBJECT = 0.35
 
+
+#: a range-dependent automatic threshold (:func:`auto_range_coefficient`): the points at or
+#: below the surface in this many equal-count range bins ...
+AUTO_RANGE_BINS = 8
+#: ... whose robust spread grows steadily with range (rank correlation at least this) ...
+AUTO_RANGE_RANK = 0.9
+#: ... by at least this factor from the nearest bin to the farthest (which is the widest):
+#: a sensor whose noise grows with range (stereo: with range squared), not a lidar, whose
+#: spread below the surface grows only where sparse rings leave the ground unsampled and
+#: then levels off
+AUTO_RANGE_GROWTH = 4.0
+#: the widest threshold the range term may give within the cloud (m), as the misfit's
+AUTO_RANGE_HIGH = 0.5
 
 #: the misfit's slope term measures slope against the ground under the sensor: the terrain
 #: points (|h| <= threshold) within this horizontal distance (m) of ``sensor_origin`` ...
@@ -125,6 +138,51 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
     return float(np.clip(factor * noise, low, high))
 
 
+def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
+                           sensor_origin=(0.0, 0.0, 0.0), *,
+                           factor: float = AUTO_THRESHOLD_FACTOR, bins: int = AUTO_RANGE_BINS,
+                           rank: float = AUTO_RANGE_RANK, growth: float = AUTO_RANGE_GROWTH,
+                           high: float = AUTO_RANGE_HIGH,
+                           min_points: int = SENSOR_GROUND_MIN_POINTS) -> float:
+    """The automatic threshold's growth with range squared (1/m), from the data: 0 for a
+    sensor whose noise does not grow with range.
+
+    The points at or below the surface (depth at most 0.5 m) are split by horizontal range
+    from ``sensor_origin`` into ``bins`` bins of equal counts; s_b = 1.4826 x the median depth
+    of bin b (the noise scale of :func:`auto_threshold`, per range). When s_b rises steadily
+    with range (Spearman rank correlation >= ``rank``), the farthest bin is the widest and at
+    least ``growth`` times the nearest, the sensor's noise grows with range (a stereo camera's
+    depth noise grows with range squared) and the coefficient is ``factor`` x c of the least
+    squares fit s = a + c r^2, at most what brings threshold + coefficient x r^2 to ``high``
+    at the farthest point. Otherwise 0: a lidar's spread below the surface is flat with range,
+    or grows only where sparse rings leave the ground unsampled and then levels off. 0 too
+    when fewer than ``min_points`` of those points lie within
+    :data:`SENSOR_GROUND_RADIUS` of the sensor (a sensor outside the cloud: airborne tiles).
+    docs/algorithm.md, "A threshold that grows with range, from the data"."""
+    p = _positions(positions)
+    h = np.asarray(heights, dtype=np.float64)
+    r2 = (p[:, 0] - sensor_origin[0]) ** 2 + (p[:, 1] - sensor_origin[1]) ** 2
+    below = np.flatnonzero((h <= 0.0) & (h >= -0.5) & np.isfinite(r2))
+    if below.size < bins * min_points or \
+            np.count_nonzero(r2[below] <= SENSOR_GROUND_RADIUS ** 2) < min_points:
+        return 0.0
+    order = below[np.argsort(r2[below], kind="stable")]
+    chunks = np.array_split(order, bins)
+    r2_bins = np.array([np.median(r2[c]) for c in chunks])
+    spread = np.array([1.4826 * np.median(-h[c]) for c in chunks])
+    # rank correlation with the bins' order (the bins are sorted by range)
+    ranks = np.argsort(np.argsort(spread, kind="stable"), kind="stable").astype(np.float64)
+    steady = np.corrcoef(np.arange(bins, dtype=np.float64), ranks)[0, 1]
+    if not (steady >= rank and spread[-1] >= spread.max()
+            and spread[-1] >= growth * max(spread[0], 1e-6)):
+        return 0.0
+    a, c = np.linalg.lstsq(np.column_stack([np.ones(bins), r2_bins]), spread, rcond=None)[0]
+    if not c > 0.0:
+        return 0.0
+    far = float(r2[order[-1]])
+    return float(min(factor * c, max(high - threshold, 0.0) / max(far, 1e-9)))
+
+
 def sensor_ground_gradient(surface: TerrainSurface, positions, heights: np.ndarray,
                            threshold: float, sensor_origin=(0.0, 0.0, 0.0), *,
                            radius: float = SENSOR_GROUND_RADIUS,
@@ -166,7 +224,7 @@ def _grade_from_sensor_ground(surface: TerrainSurface, p: np.ndarray, h: np.ndar
 
 
 def segment_points(surface: TerrainSurface, positions, *, threshold: float | None = 0.2,
-                   below_threshold: float = 0.5, range_coefficient: float = 0.0,
+                   below_threshold: float = 0.5, range_coefficient: float | None = None,
                    sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
                    along_normal: bool = True, foot_height: float = FOOT_HEIGHT,
                    foot_cell: float = FOOT_CELL) -> tuple[np.ndarray, np.ndarray]:
@@ -176,7 +234,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         data (:func:`auto_threshold`).
     below_threshold: points lower than this below the surface are BELOW_TERRAIN noise (m).
     range_coefficient: growth of the threshold with horizontal range squared (1/m), for
-        stereo clouds; 0 = constant threshold.
+        stereo clouds; 0 = constant threshold; None = from the data with ``threshold`` None
+        (:func:`auto_range_coefficient`: 0 unless the noise grows with range), else 0.
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates), and where the
         misfit's slope term takes level from (:func:`sensor_ground_gradient`).
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
@@ -193,7 +252,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
                             _check("below_threshold", below_threshold, positive=True),
-                            _check("range_coefficient", range_coefficient, positive=False),
+                            None if range_coefficient is None
+                            else _check("range_coefficient", range_coefficient, positive=False),
                             _check("foot_height", foot_height, positive=False),
                             _check("foot_cell", foot_cell, positive=True))
                 if m]
@@ -204,8 +264,12 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     p = _positions(positions)
     h = heights_above_terrain(surface, p)
     local = None
+    automatic_range = range_coefficient is None
+    range_coefficient = 0.0 if automatic_range else range_coefficient
     if threshold is None:
         threshold = auto_threshold(h)
+        if automatic_range:
+            range_coefficient = auto_range_coefficient(p, h, threshold, sensor_origin)
         if misfit and isinstance(surface, TerrainSurface):
             local = widened_thresholds(p, h, threshold, block=block_size(surface),
                                        grade=_grade_from_sensor_ground(surface, p, h, threshold,

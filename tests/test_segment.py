@@ -277,3 +277,35 @@ def test_slope_grid_and_surface_draw_and_save(tmp_path):
     for product in ("slope_grid", "surface"):
         written = WriteImage(product=product, path=f"{product}.png").write(frame, tmp_path)
         assert written[0].stat().st_size > 0
+
+
+def test_automatic_range_term_only_where_the_noise_grows_with_range():
+    """auto_range_coefficient: noise growing with range squared (a stereo camera) gives a
+    threshold that grows with r^2, capped at AUTO_RANGE_HIGH within the cloud; constant noise
+    (a lidar), noise that levels off (sparse rings), or a sensor outside the cloud give 0."""
+    from o3d_terrain.segment import AUTO_RANGE_HIGH, auto_range_coefficient
+
+    rng = np.random.default_rng(0)
+    n = 40_000
+    r = rng.uniform(3.0, 30.0, n)
+    a = rng.uniform(-0.6, 0.6, n)
+    p = np.c_[r * np.cos(a), r * np.sin(a), np.zeros(n)]
+    stereo = rng.normal(0, 0.01 + 2e-4 * r**2)
+    coefficient = auto_range_coefficient(p, stereo, 0.13)
+    assert coefficient > 0
+    assert 0.13 + coefficient * 30.0**2 <= AUTO_RANGE_HIGH + 1e-3  # at the farthest point
+    lidar = rng.normal(0, 0.02, n)
+    assert auto_range_coefficient(p, lidar, 0.13) == 0.0
+    levels_off = rng.normal(0, np.minimum(0.01 + 0.01 * r, 0.06))  # grows, then flat
+    assert auto_range_coefficient(p, levels_off, 0.13) == 0.0
+    far = p + [5e5, 4e6, 0.0]  # an airborne tile's coordinates: no sensor inside
+    assert auto_range_coefficient(far, stereo, 0.13) == 0.0
+    # segment_points uses it only with the automatic threshold and range_coefficient None
+    surface = plane_surface(0.0)
+    q = p[(np.abs(p[:, 1]) < 9.5) & (p[:, 0] < 29.5)]
+    noisy = q + np.c_[np.zeros((len(q), 2)), rng.normal(0, 0.01 + 2e-4 * np.hypot(q[:, 0], q[:, 1])**2)]
+    auto, _ = segment_points(surface, noisy, threshold=None, misfit=False, foot_height=0)
+    fixed, _ = segment_points(surface, noisy, threshold=None, range_coefficient=0.0,
+                              misfit=False, foot_height=0)
+    terrain = TerrainLabel.TERRAIN
+    assert (auto == terrain).sum() > (fixed == terrain).sum()

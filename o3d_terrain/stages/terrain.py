@@ -176,8 +176,11 @@ class Segmenter(Stage):
                                    "(misfit_threshold)")
     below_threshold: float = option(0.5, unit="m", rule=POSITIVE,
                                     help="depth below the terrain that makes a point noise")
-    range_coefficient: float = option(0.0, unit="1/m", rule=NON_NEGATIVE,
-                                      help="threshold growth per squared metre of range")
+    range_coefficient: float = option(
+        None, kind=float, nullable=True, unit="1/m", rule=NON_NEGATIVE,
+        help="threshold growth per squared metre of range; null (default) = from the data "
+             "when threshold is null (grows only where the noise below the surface grows "
+             "steadily with range, as a stereo camera's; 0 for a lidar), else 0")
     sensor_origin: tuple = option((0.0, 0.0, 0.0), kind=float, length=3, unit="m",
                                   help="sensor position for the range, in cloud coordinates")
     misfit_threshold: bool = option(
