@@ -176,7 +176,7 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     if not (steady >= rank and spread[-1] >= spread.max()
             and spread[-1] >= growth * max(spread[0], 1e-6)):
         return 0.0
-    a, c = np.linalg.lstsq(np.column_stack([np.ones(bins), r2_bins]), spread, rcond=None)[0]
+    _, c = np.linalg.lstsq(np.column_stack([np.ones(bins), r2_bins]), spread, rcond=None)[0]
     if not c > 0.0:
         return 0.0
     far = float(r2[order[-1]])
