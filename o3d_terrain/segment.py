@@ -71,8 +71,9 @@ AUTO_RANGE_RANK = 0.9
 #: spread below the surface grows only where sparse rings leave the ground unsampled and
 #: then levels off
 AUTO_RANGE_GROWTH = 4.0
-#: the widest threshold the range term may give within the cloud (m), as the misfit's
-AUTO_RANGE_HIGH = 0.5
+#: where the range term stops growing (m): objects taller than this (a rock a vehicle must not
+#: drive over; the height the obstacle-recall target counts) stay obstacles at any range
+AUTO_RANGE_HIGH = 0.3
 
 #: the misfit's slope term measures slope against the ground under the sensor: the terrain
 #: points (|h| <= threshold) within this horizontal distance (m) of ``sensor_origin`` ...
@@ -106,14 +107,14 @@ def heights_above_terrain(surface: TerrainSurface, positions) -> np.ndarray:
 
 
 def thresholds(positions, *, threshold: float, range_coefficient: float = 0.0,
-               sensor_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """Per-point obstacle threshold t(r) = threshold + range_coefficient * r^2 (metres),
-    r = horizontal distance from ``sensor_origin``."""
+               sensor_origin=(0.0, 0.0, 0.0), range_high: float = math.inf) -> np.ndarray:
+    """Per-point obstacle threshold t(r) = min(threshold + range_coefficient * r^2,
+    max(range_high, threshold)) (metres), r = horizontal distance from ``sensor_origin``."""
     p = _positions(positions)
     if range_coefficient == 0.0:
         return np.full(len(p), float(threshold))
     r2 = (p[:, 0] - sensor_origin[0]) ** 2 + (p[:, 1] - sensor_origin[1]) ** 2
-    return threshold + range_coefficient * r2
+    return np.minimum(threshold + range_coefficient * r2, max(range_high, threshold))
 
 
 def _check(name: str, value, *, positive: bool) -> str | None:
@@ -142,7 +143,6 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
                            sensor_origin=(0.0, 0.0, 0.0), *,
                            factor: float = AUTO_THRESHOLD_FACTOR, bins: int = AUTO_RANGE_BINS,
                            rank: float = AUTO_RANGE_RANK, growth: float = AUTO_RANGE_GROWTH,
-                           high: float = AUTO_RANGE_HIGH,
                            min_points: int = SENSOR_GROUND_MIN_POINTS) -> float:
     """The automatic threshold's growth with range squared (1/m), from the data: 0 for a
     sensor whose noise does not grow with range.
@@ -153,8 +153,8 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     with range (Spearman rank correlation >= ``rank``), the farthest bin is the widest and at
     least ``growth`` times the nearest, the sensor's noise grows with range (a stereo camera's
     depth noise grows with range squared) and the coefficient is ``factor`` x c of the least
-    squares fit s = a + c r^2, at most what brings threshold + coefficient x r^2 to ``high``
-    at the farthest point. Otherwise 0: a lidar's spread below the surface is flat with range,
+    squares fit s = a + c r^2 (:func:`segment_points` stops the threshold's growth at
+    :data:`AUTO_RANGE_HIGH`). Otherwise 0: a lidar's spread below the surface is flat with range,
     or grows only where sparse rings leave the ground unsampled and then levels off. 0 too
     when fewer than ``min_points`` of those points lie within
     :data:`SENSOR_GROUND_RADIUS` of the sensor (a sensor outside the cloud: airborne tiles).
@@ -177,10 +177,7 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
             and spread[-1] >= growth * max(spread[0], 1e-6)):
         return 0.0
     _, c = np.linalg.lstsq(np.column_stack([np.ones(bins), r2_bins]), spread, rcond=None)[0]
-    if not c > 0.0:
-        return 0.0
-    far = float(r2[order[-1]])
-    return float(min(factor * c, max(high - threshold, 0.0) / max(far, 1e-9)))
+    return float(factor * c) if c > 0.0 else 0.0
 
 
 def sensor_ground_gradient(surface: TerrainSurface, positions, heights: np.ndarray,
@@ -266,22 +263,26 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     local = None
     automatic_range = range_coefficient is None
     range_coefficient = 0.0 if automatic_range else range_coefficient
+    range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
     if threshold is None:
         threshold = auto_threshold(h)
         if automatic_range:
             range_coefficient = auto_range_coefficient(p, h, threshold, sensor_origin)
+            range_high = AUTO_RANGE_HIGH
         if misfit and isinstance(surface, TerrainSurface):
             local = widened_thresholds(p, h, threshold, block=block_size(surface),
                                        grade=_grade_from_sensor_ground(surface, p, h, threshold,
                                                                        sensor_origin))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
-                           range_coefficient=range_coefficient, sensor_origin=sensor_origin)
+                           range_coefficient=range_coefficient, sensor_origin=sensor_origin,
+                           range_high=range_high)
     if local is not None and local.max(initial=threshold) > threshold:
         widen_labels(labels, h, local, threshold)
     if along_normal and isinstance(surface, TerrainSurface):
         relabel_along_normal(labels, h, p, surface, threshold=threshold,
                              below_threshold=below_threshold,
-                             range_coefficient=range_coefficient, sensor_origin=sensor_origin)
+                             range_coefficient=range_coefficient, sensor_origin=sensor_origin,
+                             range_high=range_high)
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold)
@@ -345,7 +346,7 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
 def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,
                          surface: TerrainSurface, *, threshold: float, below_threshold: float,
                          range_coefficient: float = 0.0, sensor_origin=(0.0, 0.0, 0.0),
-                         cap: float = NORMAL_FACTOR_MAX) -> None:
+                         cap: float = NORMAL_FACTOR_MAX, range_high: float = math.inf) -> None:
     """In place: the thresholds taken along the surface normal instead of vertically.
 
     A point on terrain of slope theta lies off a surface that follows it by its noise along
@@ -353,7 +354,8 @@ def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,
     surface's own error is, too): a vertical threshold that fits flat ground cuts the terrain
     of slopes and faces. OBSTACLE points with h <= t(r) * f and BELOW_TERRAIN points with
     h >= -below_threshold * f become TERRAIN, f = min(sqrt(1 + |grad S|^2), ``cap``) at the
-    point (t(r): :func:`thresholds`). Only the points within ``cap`` times the thresholds are
+    point (t(r): :func:`thresholds`, at most ``range_high`` where it grows with range). Only
+    the points within ``cap`` times the thresholds are
     looked at, so the surface's gradient is evaluated at few points."""
     if labels.dtype != np.uint8 or labels.ndim != 1 or not labels.flags.writeable:
         raise InputError("relabel_along_normal: labels must be a writeable (N,) uint8 array")
@@ -366,7 +368,8 @@ def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,
     _bs.relabel_along_normal(
         labels, np.ascontiguousarray(heights, dtype=np.float64), p, float(threshold),
         float(below_threshold), float(range_coefficient), float(sensor_origin[0]),
-        float(sensor_origin[1]), float(cap), float(surface.origin[0]), float(surface.origin[1]),
+        float(sensor_origin[1]), float(range_high), float(cap), float(surface.origin[0]),
+        float(surface.origin[1]),
         tol_x, tol_y, surface.knots_x, surface.knots_y, int(surface.degree),
         surface.control_points, surface.weights, int(TerrainLabel.TERRAIN),
         int(TerrainLabel.OBSTACLE), int(TerrainLabel.BELOW_TERRAIN))
@@ -384,12 +387,14 @@ def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,
 
 
 def label_heights(heights: np.ndarray, positions, *, threshold: float, below_threshold: float,
-                  range_coefficient: float = 0.0, sensor_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+                  range_coefficient: float = 0.0, sensor_origin=(0.0, 0.0, 0.0),
+                  range_high: float = math.inf) -> np.ndarray:
     """Labels (N,) uint8 from heights above the terrain (the rule of :func:`segment_points`,
-    options assumed checked)."""
+    options assumed checked); the range-dependent threshold stops growing at ``range_high``."""
     p = _positions(positions)
     return _bs.label_heights(
         np.ascontiguousarray(heights, dtype=np.float64), p, float(threshold),
         float(below_threshold), float(range_coefficient), float(sensor_origin[0]),
-        float(sensor_origin[1]), int(TerrainLabel.UNKNOWN), int(TerrainLabel.TERRAIN),
+        float(sensor_origin[1]), float(range_high), int(TerrainLabel.UNKNOWN),
+        int(TerrainLabel.TERRAIN),
         int(TerrainLabel.OBSTACLE), int(TerrainLabel.BELOW_TERRAIN))

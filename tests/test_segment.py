@@ -292,8 +292,7 @@ def test_automatic_range_term_only_where_the_noise_grows_with_range():
     p = np.c_[r * np.cos(a), r * np.sin(a), np.zeros(n)]
     stereo = rng.normal(0, 0.01 + 2e-4 * r**2)
     coefficient = auto_range_coefficient(p, stereo, 0.13)
-    assert coefficient > 0
-    assert 0.13 + coefficient * 30.0**2 <= AUTO_RANGE_HIGH + 1e-3  # at the farthest point
+    assert coefficient == pytest.approx(3.5 * 2e-4, rel=0.25)  # 3.5 x the noise's growth
     lidar = rng.normal(0, 0.02, n)
     assert auto_range_coefficient(p, lidar, 0.13) == 0.0
     levels_off = rng.normal(0, np.minimum(0.01 + 0.01 * r, 0.06))  # grows, then flat
@@ -309,3 +308,9 @@ def test_automatic_range_term_only_where_the_noise_grows_with_range():
                               misfit=False, foot_height=0)
     terrain = TerrainLabel.TERRAIN
     assert (auto == terrain).sum() > (fixed == terrain).sum()
+    # the automatic growth stops at AUTO_RANGE_HIGH: a 0.6 m object 29 m out stays an obstacle
+    post = np.array([[29.0, 0.0, 0.6]])
+    labels, _ = segment_points(surface, np.vstack([noisy, post]), threshold=None, misfit=False,
+                               foot_height=0)
+    assert 0.13 + coefficient * 29.0**2 > 0.6 > AUTO_RANGE_HIGH
+    assert labels[-1] == TerrainLabel.OBSTACLE

@@ -641,10 +641,11 @@ def heights_above_serial(positions, origin_x, origin_y, origin_z, knots_x, knots
 
 @numba.njit(cache=True)
 def label_heights(heights, positions, threshold, below_threshold, range_coefficient,
-                  sensor_x, sensor_y, unknown, terrain, obstacle, below):
-    """Labels (uint8) from heights above the terrain: ``obstacle`` above t(r) = threshold +
-    range_coefficient r^2, ``below`` under -below_threshold, ``terrain`` between, ``unknown``
-    for NaN heights. r is the horizontal range of ``positions[k]`` from the sensor."""
+                  sensor_x, sensor_y, range_high, unknown, terrain, obstacle, below):
+    """Labels (uint8) from heights above the terrain: ``obstacle`` above t(r) = min(threshold +
+    range_coefficient r^2, max(range_high, threshold)), ``below`` under -below_threshold,
+    ``terrain`` between, ``unknown`` for NaN heights. r is the horizontal range of
+    ``positions[k]`` from the sensor."""
     n = heights.shape[0]
     out = np.empty(n, np.uint8)
     for k in range(n):
@@ -656,7 +657,8 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
         if range_coefficient != 0.0:
             dx = positions[k, 0] - sensor_x
             dy = positions[k, 1] - sensor_y
-            t = threshold + range_coefficient * (dx * dx + dy * dy)
+            t = min(threshold + range_coefficient * (dx * dx + dy * dy),
+                    max(range_high, threshold))
         if h > t:
             out[k] = obstacle
         elif h < -below_threshold:
@@ -739,14 +741,14 @@ def _point_first_derivatives(xk, yk, knots_x, knots_y, p, control, weights, inv_
 
 @numba.njit(cache=True, error_model="numpy")
 def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
-                         range_coefficient, sensor_x, sensor_y, cap, origin_x, origin_y, tol_x,
-                         tol_y, knots_x, knots_y, degree, control, weights, terrain, obstacle,
-                         below):
+                         range_coefficient, sensor_x, sensor_y, range_high, cap, origin_x,
+                         origin_y, tol_x, tol_y, knots_x, knots_y, degree, control, weights,
+                         terrain, obstacle, below):
     """In place, in one pass: ``obstacle`` points with h <= t(r) f and ``below`` points with
     h >= -below_threshold f become ``terrain``, f = min(sqrt(1 + |grad S|^2), ``cap``) at the
     point (1 where the gradient is not finite or the point lies outside the knot range widened
-    by ``tol_x``/``tol_y``), t(r) = threshold + range_coefficient r^2 (r: horizontal range
-    from the sensor). The gradient is evaluated only at the points within ``cap`` times their
+    by ``tol_x``/``tol_y``), t(r) = min(threshold + range_coefficient r^2, max(range_high,
+    threshold)) (r: horizontal range from the sensor). The gradient is evaluated only at the points within ``cap`` times their
     threshold: for degree 3 from the span pairs' bicubic A and D
     (:func:`_cubic_span_gradient`, as :func:`heights_above` evaluates S), else by the
     operations of :func:`rational_surface_points`. Returns how many labels changed."""
@@ -772,7 +774,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         if range_coefficient != 0.0:
             ex = positions[k, 0] - sensor_x
             ey = positions[k, 1] - sensor_y
-            obstacle_cap = cap * (threshold + range_coefficient * (ex * ex + ey * ey))
+            obstacle_cap = cap * min(threshold + range_coefficient * (ex * ex + ey * ey),
+                                     max(range_high, threshold))
         candidates[count] = k
         count += ((label == obstacle) & (h <= obstacle_cap)) | ((label == below) & (h >= below_cap))
     if count == 0:
@@ -794,7 +797,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         if range_coefficient != 0.0:
             ex = positions[k, 0] - sensor_x
             ey = positions[k, 1] - sensor_y
-            t = threshold + range_coefficient * (ex * ex + ey * ey)
+            t = min(threshold + range_coefficient * (ex * ex + ey * ey),
+                    max(range_high, threshold))
         xk = positions[k, 0] - origin_x
         yk = positions[k, 1] - origin_y
         factor = 1.0
