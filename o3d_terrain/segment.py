@@ -64,13 +64,17 @@ FOOT_OBJECT = 0.35
 #: a range-dependent automatic threshold (:func:`auto_range_coefficient`): the points at or
 #: below the surface in this many equal-count range bins ...
 AUTO_RANGE_BINS = 8
-#: ... whose robust spread grows steadily with range (rank correlation at least this) ...
-AUTO_RANGE_RANK = 0.9
-#: ... by at least this factor from the nearest bin to the farthest (which is the widest):
-#: a sensor whose noise grows with range (stereo: with range squared), not a lidar, whose
-#: spread below the surface grows only where sparse rings leave the ground unsampled and
-#: then levels off
-AUTO_RANGE_GROWTH = 4.0
+#: ... whose robust spread follows s = a + c r^2 (coefficient of determination at least
+#: this) ...
+AUTO_RANGE_FIT = 0.75
+#: ... and grows by at least this factor from the nearest bin to the farthest (which is the
+#: widest): a sensor whose noise grows with range squared (stereo), not a lidar, whose spread
+#: below the surface grows only where sparse rings leave the ground unsampled and then levels
+#: off (docs/algorithm.md, "A threshold that grows with range, from the data")
+AUTO_RANGE_GROWTH = 5.0
+#: ... measured on every k-th of those points, k = max(1, count // this) (a few thousand
+#: points give the 8 medians; sorting all of a lidar frame's would cost milliseconds)
+AUTO_RANGE_SAMPLE = 2048
 #: where the range term stops growing (m): objects taller than this (a rock a vehicle must not
 #: drive over; the height the obstacle-recall target counts) stay obstacles at any range
 AUTO_RANGE_HIGH = 0.3
@@ -142,18 +146,19 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
 def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
                            sensor_origin=(0.0, 0.0, 0.0), *,
                            factor: float = AUTO_THRESHOLD_FACTOR, bins: int = AUTO_RANGE_BINS,
-                           rank: float = AUTO_RANGE_RANK, growth: float = AUTO_RANGE_GROWTH,
+                           fit: float = AUTO_RANGE_FIT, growth: float = AUTO_RANGE_GROWTH,
                            min_points: int = SENSOR_GROUND_MIN_POINTS) -> float:
     """The automatic threshold's growth with range squared (1/m), from the data: 0 for a
     sensor whose noise does not grow with range.
 
-    The points at or below the surface (depth at most 0.5 m) are split by horizontal range
-    from ``sensor_origin`` into ``bins`` bins of equal counts; s_b = 1.4826 x the median depth
-    of bin b (the noise scale of :func:`auto_threshold`, per range). When s_b rises steadily
-    with range (Spearman rank correlation >= ``rank``), the farthest bin is the widest and at
-    least ``growth`` times the nearest, the sensor's noise grows with range (a stereo camera's
-    depth noise grows with range squared) and the coefficient is ``factor`` x c of the least
-    squares fit s = a + c r^2 (:func:`segment_points` stops the threshold's growth at
+    The points at or below the surface (depth at most 0.5 m; every k-th of them,
+    :data:`AUTO_RANGE_SAMPLE`) are split by horizontal range from ``sensor_origin`` into
+    ``bins`` bins of equal counts; s_b = 1.4826 x the median depth
+    of bin b (the noise scale of :func:`auto_threshold`, per range). When the least-squares fit
+    s = a + c r^2 over the bins explains them (coefficient of determination >= ``fit``, c > 0),
+    the farthest bin is the widest and at least ``growth`` times the nearest, the sensor's noise
+    grows with range squared (a stereo camera's depth noise) and the coefficient is ``factor``
+    x c (:func:`segment_points` stops the threshold's growth at
     :data:`AUTO_RANGE_HIGH`). Otherwise 0: a lidar's spread below the surface is flat with range,
     or grows only where sparse rings leave the ground unsampled and then levels off. 0 too
     when fewer than ``min_points`` of those points lie within
@@ -161,23 +166,28 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     docs/algorithm.md, "A threshold that grows with range, from the data"."""
     p = _positions(positions)
     h = np.asarray(heights, dtype=np.float64)
-    r2 = (p[:, 0] - sensor_origin[0]) ** 2 + (p[:, 1] - sensor_origin[1]) ** 2
-    below = np.flatnonzero((h <= 0.0) & (h >= -0.5) & np.isfinite(r2))
+    below = np.flatnonzero((h <= 0.0) & (h >= -0.5))
+    below = below[::max(1, below.size // AUTO_RANGE_SAMPLE)]  # 8 medians need no more
+    r2 = (p[below, 0] - sensor_origin[0]) ** 2 + (p[below, 1] - sensor_origin[1]) ** 2
+    keep = np.isfinite(r2)
+    below, r2 = below[keep], r2[keep]
     if below.size < bins * min_points or \
-            np.count_nonzero(r2[below] <= SENSOR_GROUND_RADIUS ** 2) < min_points:
+            np.count_nonzero(r2 <= SENSOR_GROUND_RADIUS ** 2) < min_points:
         return 0.0
-    order = below[np.argsort(r2[below], kind="stable")]
-    chunks = np.array_split(order, bins)
-    r2_bins = np.array([np.median(r2[c]) for c in chunks])
-    spread = np.array([1.4826 * np.median(-h[c]) for c in chunks])
-    # rank correlation with the bins' order (the bins are sorted by range)
-    ranks = np.argsort(np.argsort(spread, kind="stable"), kind="stable").astype(np.float64)
-    steady = np.corrcoef(np.arange(bins, dtype=np.float64), ranks)[0, 1]
-    if not (steady >= rank and spread[-1] >= spread.max()
-            and spread[-1] >= growth * max(spread[0], 1e-6)):
+    order = np.argsort(r2, kind="stable")
+    per_bin = order.size // bins
+    order = order[:per_bin * bins].reshape(bins, per_bin)  # nearest to farthest
+    r2_bins = np.median(r2[order], axis=1)
+    spread = 1.4826 * np.median(-h[below[order]], axis=1)
+    if not (spread[-1] >= spread.max() and spread[-1] >= growth * max(spread[0], 1e-6)):
         return 0.0
-    _, c = np.linalg.lstsq(np.column_stack([np.ones(bins), r2_bins]), spread, rcond=None)[0]
-    return float(factor * c) if c > 0.0 else 0.0
+    # least squares s = a + c r^2 over the bins, and how much of the bins' spread it explains
+    x = r2_bins - r2_bins.mean()
+    y = spread - spread.mean()
+    c = float(x @ y) / max(float(x @ x), 1e-12)
+    residual = y - c * x
+    explained = 1.0 - float(residual @ residual) / max(float(y @ y), 1e-12)
+    return float(factor * c) if c > 0.0 and explained >= fit else 0.0
 
 
 def sensor_ground_gradient(surface: TerrainSurface, positions, heights: np.ndarray,
