@@ -23,6 +23,13 @@ so never measure a misfit themselves. In widened blocks the threshold also grows
 surface's slope, by half a control spacing x tan(slope) over the global one (at most
 :data:`MISFIT_HIGH`): the detail the surface misses lies within about half a spacing of where
 the data pin it. Elsewhere the global threshold is unchanged.
+
+In widened blocks the points still above their threshold are then measured against the
+terrain around them instead of the surface (:func:`local_plane_terrain`): a point at most the
+global threshold above the plane through the terrain points within half a control spacing
+that surround it is terrain (repeated while points change): where the surface is known not to
+follow the terrain, the terrain points next to a missed ridge pin its ground better than the
+surface does.
 """
 
 from __future__ import annotations
@@ -32,9 +39,12 @@ import math
 import numba
 import numpy as np
 
+from ._kernels import local_plane as _lp
+
 __all__ = ["misfit_thresholds", "widened_thresholds", "block_size", "MISFIT_FACTOR",
            "MISFIT_HIGH", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
-           "MISFIT_REACH"]
+           "MISFIT_REACH", "MISFIT_PLANE_MIN_POINTS", "MISFIT_PLANE_ROUNDS",
+           "local_plane_terrain"]
 
 #: threshold = this many robust misfit scales (the factor of the global automatic threshold)
 MISFIT_FACTOR = 3.5
@@ -51,6 +61,11 @@ MISFIT_MIN_CELLS = 20
 #: in widened blocks, the threshold grows by this many control spacings x tan(slope): detail
 #: the surface cannot follow lies up to half a spacing from where the data pin it
 MISFIT_REACH = 0.5
+#: in widened blocks, the fewest terrain points (surrounding it) whose local plane can make a
+#: point terrain: 3 define a plane, a 4th makes it a fit
+MISFIT_PLANE_MIN_POINTS = 4
+#: rounds of the local planes at most (a ridge is taken up from its flanks in a few)
+MISFIT_PLANE_ROUNDS = 20
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -279,3 +294,31 @@ def widened_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: fl
             g = np.where(np.isfinite(g), g, 0.0)
             out[wide] = np.maximum(out[wide], np.minimum(threshold + reach * g, high))
     return out
+
+
+def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.ndarray,
+                        candidates: np.ndarray, *, radius: float, threshold: float,
+                        min_points: int = MISFIT_PLANE_MIN_POINTS,
+                        rounds: int = MISFIT_PLANE_ROUNDS) -> int:
+    """In place: ``terrain`` (N,) bool set at the ``candidates`` (indices) whose height above
+    the surface lies at most ``threshold`` above the least-squares plane (of the heights)
+    through the terrain points within ``radius`` (m) of them, when at least ``min_points``
+    such points surround the candidate (some on either side in x and in y); repeated, each
+    round from the terrain of the one before, until none changes or ``rounds``. Returns how
+    many candidates became terrain.
+
+    :func:`o3d_terrain.segment.segment_points` gives it the points of widened blocks still
+    labelled obstacle, with ``radius`` half a control spacing (:data:`MISFIT_REACH`): there
+    the surface is known not to follow the terrain (a ridge it undercuts by metres), while the
+    terrain points on the ridge's flanks, within the reach of detail the surface misses, do;
+    a bush or a tree stands above the plane through the ground around it, a ridge point does
+    not."""
+    p = np.asarray(positions, dtype=np.float64)
+    idx = np.ascontiguousarray(candidates, dtype=np.int64)
+    if idx.size == 0:
+        return 0
+    if terrain.dtype != np.bool_ or not terrain.flags.writeable or terrain.shape != (len(p),):
+        raise ValueError("local_plane_terrain: terrain must be a writeable (N,) bool array")
+    return int(_lp.local_plane_terrain(p, np.ascontiguousarray(heights, dtype=np.float64),
+                                       terrain, idx, float(radius), float(threshold),
+                                       int(min_points), int(rounds)))

@@ -27,7 +27,8 @@ import numpy as np
 from ._kernels import bspline as _bs
 from ._kernels import foot as _foot
 from .errors import InputError
-from .misfit import block_size, widened_thresholds
+from .misfit import (MISFIT_BLOCK, MISFIT_REACH, block_size, local_plane_terrain,
+                     widened_thresholds)
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
@@ -246,7 +247,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates), and where the
         misfit's slope term takes level from (:func:`sensor_ground_gradient`).
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
-        local misfit to the ground exceeds the noise (:mod:`o3d_terrain.misfit`).
+        local misfit to the ground exceeds the noise, and there measure the points still
+        above it against the plane through the terrain around them
+        (:mod:`o3d_terrain.misfit`, :func:`o3d_terrain.misfit.local_plane_terrain`).
     along_normal: measure both thresholds along the surface normal instead of vertically
         (the vertical threshold grows by sqrt(1 + |grad S|^2), at most x2, on slopes;
         :func:`relabel_along_normal`); False = vertical thresholds.
@@ -293,6 +296,16 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                              below_threshold=below_threshold,
                              range_coefficient=range_coefficient, sensor_origin=sensor_origin,
                              range_high=range_high)
+    if local is not None and local.max(initial=threshold) > threshold:
+        # widened blocks: points above their threshold measured against the local plane of
+        # the terrain around them (docs/algorithm.md, "Local planes in widened blocks")
+        candidates = np.flatnonzero((local > threshold) & (labels == TerrainLabel.OBSTACLE)
+                                    & (h > 0))
+        terrain = labels == TerrainLabel.TERRAIN
+        if candidates.size and local_plane_terrain(
+                p, h, terrain, candidates,
+                radius=MISFIT_REACH * block_size(surface) / MISFIT_BLOCK, threshold=threshold):
+            labels[candidates[terrain[candidates]]] = TerrainLabel.TERRAIN
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold)
