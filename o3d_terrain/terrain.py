@@ -249,7 +249,7 @@ def fit_grid_detailed(
             # that rise measured to compact neighbours only: a wall or a bush face next to
             # the cell is no evidence that the terrain climbs (docs/algorithm.md, "Sparse
             # scanners")
-            low = np.where(compact, grid.lowest if grid.lowest is not None else grid.z, 0.0)
+            low = grid.lowest if grid.lowest is not None else grid.z
             spread = 0.5 * _ground.compact_rise(
                 np.ascontiguousarray(low, dtype=np.float64), compact, float(grid.cell_size),
                 math.tan(math.radians(max_slope_deg)))

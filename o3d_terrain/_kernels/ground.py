@@ -260,31 +260,10 @@ def compact_rise(low, compact, cell_size, max_rise_slope):
     widest threshold of the grid and lifted the surface onto the bush (SemanticKITTI at 16
     scan lines: F1 +0.7 / +0.5 / +0.3 with this rise; docs/algorithm.md, "Sparse scanners").
     On steep terrain the neighbours are compact themselves and the rise is unchanged."""
-    nx, ny = low.shape
-    out = np.zeros((nx, ny))
-    diagonal = cell_size * _SQRT2
-    for i in range(nx):
-        for j in range(ny):
-            if not compact[i, j]:
-                continue
-            h = low[i, j]
-            straight = 0.0
-            across = 0.0
-            for di in range(-1, 2):
-                a = i + di
-                if a < 0 or a >= nx:
-                    continue
-                for dj in range(-1, 2):
-                    b = j + dj
-                    if b < 0 or b >= ny or (di == 0 and dj == 0) or not compact[a, b]:
-                        continue
-                    if di == 0 or dj == 0:
-                        straight = max(straight, abs(low[a, b] - h))
-                    else:
-                        across = max(across, abs(low[a, b] - h))
-            out[i, j] = cell_size * min(max(straight / cell_size, across / diagonal),
-                                        max_rise_slope)
-    return out
+    # :func:`steepest_neighbour_slope` skips empty (inf) cells and neighbours: hide the cells
+    # that are not compact
+    slope = steepest_neighbour_slope(np.where(compact, low, np.inf), cell_size)
+    return cell_size * np.minimum(slope, max_rise_slope)
 
 
 @numba.njit(cache=True)
