@@ -289,14 +289,15 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
                            range_coefficient=range_coefficient, sensor_origin=sensor_origin,
                            range_high=range_high)
-    if local is not None and local.max(initial=threshold) > threshold:
+    widened = local is not None and local.max(initial=threshold) > threshold
+    if widened:
         widen_labels(labels, h, local, threshold)
     if along_normal and isinstance(surface, TerrainSurface):
         relabel_along_normal(labels, h, p, surface, threshold=threshold,
                              below_threshold=below_threshold,
                              range_coefficient=range_coefficient, sensor_origin=sensor_origin,
                              range_high=range_high)
-    if local is not None and local.max(initial=threshold) > threshold:
+    if widened:
         # widened blocks: points above their threshold measured against the local plane of
         # the terrain around them (docs/algorithm.md, "Local planes in widened blocks")
         candidates = np.flatnonzero((local > threshold) & (labels == TerrainLabel.OBSTACLE)

@@ -640,6 +640,17 @@ def heights_above_serial(positions, origin_x, origin_y, origin_z, knots_x, knots
 
 
 @numba.njit(cache=True)
+def _range_threshold(positions, k, threshold, range_coefficient, sensor_x, sensor_y,
+                     range_high):
+    """The obstacle threshold of point k at horizontal range r from the sensor:
+    min(threshold + range_coefficient r^2, max(range_high, threshold)), the one rule of
+    :func:`label_heights` and :func:`relabel_along_normal`."""
+    dx = positions[k, 0] - sensor_x
+    dy = positions[k, 1] - sensor_y
+    return min(threshold + range_coefficient * (dx * dx + dy * dy), max(range_high, threshold))
+
+
+@numba.njit(cache=True)
 def label_heights(heights, positions, threshold, below_threshold, range_coefficient,
                   sensor_x, sensor_y, range_high, unknown, terrain, obstacle, below):
     """Labels (uint8) from heights above the terrain: ``obstacle`` above t(r) = min(threshold +
@@ -655,10 +666,8 @@ def label_heights(heights, positions, threshold, below_threshold, range_coeffici
             continue
         t = threshold
         if range_coefficient != 0.0:
-            dx = positions[k, 0] - sensor_x
-            dy = positions[k, 1] - sensor_y
-            t = min(threshold + range_coefficient * (dx * dx + dy * dy),
-                    max(range_high, threshold))
+            t = _range_threshold(positions, k, threshold, range_coefficient, sensor_x,
+                                 sensor_y, range_high)
         if h > t:
             out[k] = obstacle
         elif h < -below_threshold:
@@ -772,10 +781,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         label = labels[k]
         h = heights[k]
         if range_coefficient != 0.0:
-            ex = positions[k, 0] - sensor_x
-            ey = positions[k, 1] - sensor_y
-            obstacle_cap = cap * min(threshold + range_coefficient * (ex * ex + ey * ey),
-                                     max(range_high, threshold))
+            obstacle_cap = cap * _range_threshold(positions, k, threshold, range_coefficient,
+                                                  sensor_x, sensor_y, range_high)
         candidates[count] = k
         count += ((label == obstacle) & (h <= obstacle_cap)) | ((label == below) & (h >= below_cap))
     if count == 0:
@@ -795,10 +802,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         h = heights[k]
         t = threshold
         if range_coefficient != 0.0:
-            ex = positions[k, 0] - sensor_x
-            ey = positions[k, 1] - sensor_y
-            t = min(threshold + range_coefficient * (ex * ex + ey * ey),
-                    max(range_high, threshold))
+            t = _range_threshold(positions, k, threshold, range_coefficient, sensor_x,
+                                 sensor_y, range_high)
         xk = positions[k, 0] - origin_x
         yk = positions[k, 1] - origin_y
         factor = 1.0
