@@ -21,8 +21,9 @@ Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped
 
 Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt,lidar16]
-     [--no-terrain-prior] [--no-range-noise] [--no-object-feet] [--no-cell-plane]
-(``--no-object-feet``: label by height alone, ``foot_height=0``.)
+     [--no-terrain-prior] [--no-range-noise] [--no-object-feet] [--no-cell-plane] [--no-refine]
+(``--no-object-feet``: label by height alone, ``foot_height=0``; ``--no-refine``: the robust
+loop's surface without the refit to the terrain points.)
 """
 
 from __future__ import annotations
@@ -43,11 +44,11 @@ from o3d_terrain.evaluation.datasets import SYNTHETIC_STEREO_RIG  # noqa: E402
 from o3d_terrain.grid import quantize_points, region_of  # noqa: E402
 from o3d_terrain.noise import RangeNoise  # noqa: E402
 from o3d_terrain.segment import TerrainLabel, segment_points  # noqa: E402
-from o3d_terrain.terrain import fit_grid_detailed  # noqa: E402
+from o3d_terrain.stages import RationalBSplineTerrain  # noqa: E402
 
-#: keyword options of fit_grid_detailed for every fit (set from the command line); cell_plane
-#: as fit_terrain's default
-FIT_OPTIONS: dict = {"cell_plane": True}
+#: options of the RationalBSplineTerrain stage for every fit (set from the command line; the
+#: stage's defaults otherwise, which are fit_terrain's: cell_plane, refine)
+FIT_OPTIONS: dict = {}
 
 #: keyword options of segment_points for every labelling (set from the command line)
 LABEL_OPTIONS: dict = {}
@@ -64,11 +65,10 @@ def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None)
     """What ``o3d_terrain.fit_terrain`` does with its defaults (0.5 m cells, the cloud's
     extent), with FIT_OPTIONS passed to the fit."""
     finite = positions[np.isfinite(positions).all(axis=1)]
+    stage = RationalBSplineTerrain(method=method, **FIT_OPTIONS)
     grid = quantize_points(finite, cell_size=0.5, region=region_of(finite),
-                           plane=bool(FIT_OPTIONS.get("cell_plane")),
-                           tilt_spread=FIT_OPTIONS.get("noise_floor", 0.03))
-    return fit_grid_detailed(grid, method=method, positions=finite, range_noise=range_noise,
-                             **FIT_OPTIONS).surface
+                           plane=stage.cell_plane, tilt_spread=stage.noise_floor)
+    return stage.fit(grid, finite, range_noise).surface
 
 
 def segment_terrain(positions: np.ndarray, method: str = "robust"):
@@ -253,6 +253,9 @@ def main() -> None:
                         help="label by height alone (foot_height=0)")
     parser.add_argument("--no-cell-plane", action="store_true",
                         help="fit with cell_plane=False (eq. 1 about the cell means everywhere)")
+    parser.add_argument("--no-refine", action="store_true",
+                        help="the robust loop's surface, not refitted to the terrain points "
+                             "(refine=False)")
     args = parser.parse_args()
     if args.no_object_feet:
         LABEL_OPTIONS["foot_height"] = 0.0
@@ -262,6 +265,8 @@ def main() -> None:
         FIT_OPTIONS["terrain_prior"] = False
     if args.no_cell_plane:
         FIT_OPTIONS["cell_plane"] = False
+    if args.no_refine:
+        FIT_OPTIONS["refine"] = False
     parts = set(args.only.split(","))
     root = data_root()
     sensors = args.sensors.split(",")

@@ -85,6 +85,9 @@ class TerrainFit:
     equalized: np.ndarray | None = None  # (m0, m1) bool: sample was moved by equalization
     outliers: np.ndarray | None = None  # (m0, m1) bool: valid sample judged off the terrain
     noise: float = float("nan")  # robust noise scale of the samples at the end (m)
+    # the robust loop's surface when ``surface`` is its refit to the terrain points
+    # (RationalBSplineTerrain's refine, o3d_terrain.refine); None = surface is the loop's own
+    robust_surface: TerrainSurface | None = None
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,
