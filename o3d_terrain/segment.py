@@ -67,12 +67,23 @@ FOOT_OBJECT = 0.35
 AUTO_RANGE_BINS = 8
 #: ... whose robust spread follows s = a + c r^2 (coefficient of determination at least
 #: this) ...
-AUTO_RANGE_FIT = 0.75
-#: ... and grows by at least this factor from the nearest bin to the farthest (which is the
-#: widest): a sensor whose noise grows with range squared (stereo), not a lidar, whose spread
-#: below the surface grows only where sparse rings leave the ground unsampled and then levels
-#: off (docs/algorithm.md, "A threshold that grows with range, from the data")
+AUTO_RANGE_FIT = 0.6
+#: ... and grows by at least this factor from the narrowest bin to the farthest (which is at
+#: least :data:`AUTO_RANGE_TOP` times the widest): a sensor whose noise grows with range
+#: squared (stereo), not a lidar, whose spread below the surface grows only where sparse rings
+#: leave the ground unsampled and then levels off (docs/algorithm.md, "A threshold that grows
+#: with range, from the data")
 AUTO_RANGE_GROWTH = 5.0
+#: ... the farthest bin's spread at least this share of the widest bin's: a terrain feature
+#: the surface misses at one range (a ditch) widens that bin alone
+AUTO_RANGE_TOP = 0.8
+#: ... spreads below this (m) count as this in the growth: a lidar's spread of a few
+#: millimetres is its resolution, and ratios of such spreads say nothing about range
+AUTO_RANGE_FLOOR = 0.01
+#: ... and from each bin to the next it grows at most this many times what the bins' r^2
+#: explains: noise growing with range grows gradually, a face or a ditch the surface misses
+#: at one range makes the spread jump from one bin to the next
+AUTO_RANGE_STEP = 2.5
 #: ... measured on every k-th of those points, k = max(1, count // this) (a few thousand
 #: points give the 8 medians; sorting all of a lidar frame's would cost milliseconds)
 AUTO_RANGE_SAMPLE = 2048
@@ -157,7 +168,10 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     ``bins`` bins of equal counts; s_b = 1.4826 x the median depth
     of bin b (the noise scale of :func:`auto_threshold`, per range). When the least-squares fit
     s = a + c r^2 over the bins explains them (coefficient of determination >= ``fit``, c > 0),
-    the farthest bin is the widest and at least ``growth`` times the nearest, the sensor's noise
+    the farthest bin is at least :data:`AUTO_RANGE_TOP` times the widest and ``growth`` times
+    the narrowest (spreads under :data:`AUTO_RANGE_FLOOR` counted as that), and from no bin to
+    the next the spread grows more than :data:`AUTO_RANGE_STEP` times their ratio of r^2 (a
+    face or a ditch the surface misses at one range makes it jump), the sensor's noise
     grows with range squared (a stereo camera's depth noise) and the coefficient is ``factor``
     x c (:func:`segment_points` stops the threshold's growth at
     :data:`AUTO_RANGE_HIGH`). Otherwise 0: a lidar's spread below the surface is flat with range,
@@ -180,7 +194,11 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     order = order[:per_bin * bins].reshape(bins, per_bin)  # nearest to farthest
     r2_bins = np.median(r2[order], axis=1)
     spread = 1.4826 * np.median(-h[below[order]], axis=1)
-    if not (spread[-1] >= spread.max() and spread[-1] >= growth * max(spread[0], 1e-6)):
+    floored = np.maximum(spread, AUTO_RANGE_FLOOR)
+    steps = (floored[1:] / floored[:-1]) / (np.maximum(r2_bins[1:], 1e-12)
+                                            / np.maximum(r2_bins[:-1], 1e-12))
+    if not (spread[-1] >= AUTO_RANGE_TOP * spread.max()
+            and spread[-1] >= growth * floored.min() and steps.max() <= AUTO_RANGE_STEP):
         return 0.0
     # least squares s = a + c r^2 over the bins, and how much of the bins' spread it explains
     x = r2_bins - r2_bins.mean()

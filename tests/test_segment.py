@@ -314,3 +314,28 @@ def test_automatic_range_term_only_where_the_noise_grows_with_range():
                                foot_height=0)
     assert 0.13 + coefficient * 29.0**2 > 0.6 > AUTO_RANGE_HIGH
     assert labels[-1] == TerrainLabel.OBSTACLE
+
+
+def test_automatic_range_term_ignores_a_jump_and_a_wide_near_bin(monkeypatch):
+    """The spread below the surface that jumps at one range (a face the surface misses, here a
+    lidar's constant noise plus 0.3 m depth beyond 20 m) is no noise growing with range; a
+    stereo spread whose nearest bin is wide (matching errors at the image bottom) and whose
+    farthest is a little narrower than one before it still is."""
+    import o3d_terrain.segment as segment
+    from o3d_terrain.segment import auto_range_coefficient
+
+    rng = np.random.default_rng(1)
+    n = 40_000
+    r = rng.uniform(3.0, 30.0, n)
+    a = rng.uniform(-0.6, 0.6, n)
+    p = np.c_[r * np.cos(a), r * np.sin(a), np.zeros(n)]
+    jump = rng.normal(0, np.where(r > 20.0, 0.3, 0.004))
+    assert auto_range_coefficient(p, jump, 0.13) == 0.0
+    with monkeypatch.context() as m:  # the step test is what rejects it
+        m.setattr(segment, "AUTO_RANGE_STEP", np.inf)
+        assert auto_range_coefficient(p, jump, 0.13) > 0.0
+    sigma = 0.01 + 2e-4 * r**2
+    sigma = np.where(r < 4.5, 0.05, sigma)  # the nearest bin wide
+    sigma = np.where(r > 27.0, 0.9 * (0.01 + 2e-4 * 27.0**2), sigma)  # the farthest a bit less
+    stereo = rng.normal(0, sigma)
+    assert auto_range_coefficient(p, stereo, 0.13) > 0.0
