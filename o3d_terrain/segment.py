@@ -76,7 +76,7 @@ AUTO_RANGE_FIT = 0.6
 AUTO_RANGE_GROWTH = 5.0
 #: ... the farthest bin's spread at least this share of the widest bin's: a terrain feature
 #: the surface misses at one range (a ditch) widens that bin alone
-AUTO_RANGE_TOP = 0.8
+AUTO_RANGE_TOP = 0.7
 #: ... spreads below this (m) count as this in the growth: a lidar's spread of a few
 #: millimetres is its resolution, and ratios of such spreads say nothing about range
 AUTO_RANGE_FLOOR = 0.01
