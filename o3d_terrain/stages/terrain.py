@@ -29,7 +29,10 @@ class RationalBSplineTerrain(Stage):
     Iterative re-weighted least squares with rational control-point weights and equalization,
     growing the control grid from coarse to fine. ``method: robust`` (default) adds bounded
     asymmetric weights, a thin-plate penalty for cells without data and a consistent rational
-    fit; ``method: paper`` runs Algorithm V-B.1 as printed (see docs/algorithm.md).
+    fit; ``method: paper`` runs Algorithm V-B.1 as printed (see docs/algorithm.md). With
+    ``refine`` (default) the robust fit's surface is then fitted again to the points its
+    automatic labels call terrain (o3d_terrain.refine; docs/algorithm.md, "Refit on the
+    terrain points").
     """
 
     reads = ("grid",)
