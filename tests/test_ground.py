@@ -110,6 +110,32 @@ def test_prior_seeds_equals_the_separate_kernels(rng, shape):
     measured = np.isfinite(low)
     crossed, seeds = prior_seeds(low, measured, 0.5, 0.36, 1.0, 0.09, 3)
     walls = above_slope_cone(low, 0.5, 1.0, 0.09)
-    expected = np.where(walls, np.inf, cone_fill(low, measured, 0.5, 0.36))
+    # empty cells next to a measured one take the slope cone (the points' spacing, no gap)
+    padded = np.pad(measured, 1)
+    beside = np.zeros(shape, bool)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            if di or dj:
+                beside |= padded[1 + di:1 + di + shape[0], 1 + dj:1 + dj + shape[1]]
+    gap = np.where(beside & ~measured, cone_fill(low, np.zeros(shape, bool), 0.5, 1.0),
+                   cone_fill(low, measured, 0.5, 0.36))
+    expected = np.where(walls, np.inf, gap)
     np.testing.assert_array_equal(crossed, expected)
     np.testing.assert_array_equal(seeds, measured & (low <= window_min(low, 3)) & ~walls)
+
+
+def test_prior_connects_a_steep_slope_sampled_sparsely():
+    """An airborne tile's one point per four 0.5 m cells leaves every measured cell among empty
+    ones: those next to a point are its spacing, not a gap, and take the slope cone, so a 30
+    degree slope stays connected (with the gap slope's 20 degrees there: 14 % of its cells)."""
+    from o3d_terrain.grid import quantize_points
+    from o3d_terrain.terrain import terrain_prior_mask
+
+    rng = np.random.default_rng(3)
+    n = 2500  # 60 x 40 m, about one point per m^2
+    x, y = rng.uniform(0, 60, n), rng.uniform(0, 40, n)
+    for degrees in (25.0, 30.0):
+        z = np.tan(np.radians(degrees)) * x + rng.normal(0, 0.02, n)
+        grid = quantize_points(np.c_[x, y, z], cell_size=0.5)
+        connected, _ = terrain_prior_mask(grid)
+        assert connected.sum() >= 0.97 * (grid.state == 1).sum()

@@ -313,13 +313,25 @@ def _cone_sweep(gap, env, measured, g1, g2, s1, s2, forward):
                 gap[i, j] = vp
 
 
+@numba.njit(cache=True, inline="always")
+def _next_to_measured(measured, i, j):
+    """Whether one of the 8 neighbours of cell (i, j) is measured."""
+    nx, ny = measured.shape
+    for a in range(max(i - 1, 0), min(i + 2, nx)):
+        for b in range(max(j - 1, 0), min(j + 2, ny)):
+            if (a != i or b != j) and measured[a, b]:
+                return True
+    return False
+
+
 @numba.njit(cache=True)
 def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
     """The inputs of :func:`connected_terrain` for the terrain prior: (crossed, seeds).
 
     Two lower cone envelopes min_m (low[m] + slope * d(c, m)) (d the 8-neighbour chamfer
     distance), swept together by two raster passes: ``gap`` with the measured cells kept fixed
-    and the gap slope (how empty cells are crossed), ``env`` with nothing fixed and ``slope``.
+    and the gap slope (how empty cells are crossed), ``env`` with nothing fixed and ``slope``;
+    empty cells next to a measured cell take ``env`` (the points' spacing, not a gap).
     Walls: cells higher than ``tolerance`` above the least neighbour value of ``env``
     (Vosselman's slope-based filter); crossed = gap, inf on walls. Seeds: measured cells, not
     walls, with low <= :func:`window_min` (low, radius). Plain references of both envelopes
@@ -333,6 +345,14 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
     s2 = s1 * _SQRT2
     _cone_sweep(gap, env, measured, g1, g2, s1, s2, True)
     _cone_sweep(gap, env, measured, g1, g2, s1, s2, False)
+    # an empty cell next to a measured one is no gap in the data but the spacing of the points
+    # (a sparse airborne tile's one point per two or three cells): it takes the slope cone,
+    # so steep terrain stays connected across it; the gap slope holds from the second cell on
+    for i in range(nx):
+        for j in range(ny):
+            if measured[i, j] or not _next_to_measured(measured, i, j):
+                continue
+            gap[i, j] = env[i, j]
     lowest_around = window_min(low, radius)
     seeds = np.zeros((nx, ny), np.bool_)
     for i in range(nx):
