@@ -188,7 +188,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     refine: (default; robust method) label the points against the fitted surface with the
     automatic rule of :func:`segment_terrain` and fit the same layout again to the terrain
     points alone (:func:`o3d_terrain.refine.refine_surface`; docs/algorithm.md, "Refit on the
-    terrain points"); False = the robust loop's surface, about 10 ms sooner on a 120k-point
+    terrain points"); False = the robust loop's surface, about 30 % sooner on a 120k-point
     lidar frame. ``sensor_origin`` (cloud coordinates) is where those labels measure range
     from.
 
