@@ -245,8 +245,8 @@ def fit_grid_detailed(
         prior = None
         compact = np.zeros((0, 0), bool)
         if terrain_prior:
-            connected, compact, _ = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
-                                                   max_obstacle_width, 3.0 * noise_floor)
+            connected, compact = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
+                                                max_obstacle_width, 3.0 * noise_floor)
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow),
             # that rise measured to compact neighbours only: a wall or a bush face next to
@@ -323,15 +323,13 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = MAX_SLOPE_DEG
     point is no more than tolerance above the highest of theirs: it lies within the terrain
     they span (a slope seen at a grazing angle), not above it (a step of a wall).
     """
-    connected, compact, _ = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
-                                           max_obstacle_width, tolerance)
-    return connected, compact
+    return _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance)
 
 
 def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance):
-    """(connected, compact, rise) of :func:`terrain_prior_mask`; rise (m) = cell_size times
-    the steepest slope from each cell's lowest point to a measured neighbour's, capped at
-    tan(max_slope_deg) (0 where empty)."""
+    """(connected, compact) of :func:`terrain_prior_mask`. The fit widens compact cells by
+    :func:`o3d_terrain._kernels.ground.compact_rise`, not by the rise
+    :func:`o3d_terrain._kernels.ground.compact_cells` tests them with."""
     measured = grid.state == MEASURED
     lowest = grid.lowest if grid.lowest is not None else grid.z
     low = np.where(measured & np.isfinite(lowest), lowest, np.inf)
@@ -354,10 +352,10 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     # points spread evenly over a plane), hence half the rise is allowed. Eq. 1 cannot see a
     # vertical extent carried by a few high points; highest - lowest can.
     use_highest = grid.highest is not None
-    compact, rise = _ground.compact_cells(
+    compact, _ = _ground.compact_cells(
         low, grid.z, grid.highest if use_highest else low, grid.count, connected, c, step,
         float(tolerance), MIN_COMPACT_POINTS, SPARSE_SUPPORT, use_highest)
-    return connected, compact, rise
+    return connected, compact
 
 
 # -------------------------------------------------------------------------------------------

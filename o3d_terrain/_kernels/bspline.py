@@ -553,10 +553,7 @@ def _heights_range(positions, out, first, last, origin_x, origin_y, origin_z, kn
                    knots_y, p, control, weights, tol_x, tol_y, coef):
     """The heights of :func:`heights_above` of points first to last - 1 into ``out``
     (``coef``: :func:`cubic_span_coefficients` for degree 3, else unused)."""
-    kx0 = knots_x[0]
-    kx1 = knots_x[knots_x.shape[0] - 1]
-    ky0 = knots_y[0]
-    ky1 = knots_y[knots_y.shape[0] - 1]
+    lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
     n0 = control.shape[0]
     n1 = control.shape[1]
     inv_wx = _inverse_span_width(n0, p, knots_x)
@@ -573,8 +570,7 @@ def _heights_range(positions, out, first, last, origin_x, origin_y, origin_z, kn
         px = positions[k, 0] - origin_x
         py = positions[k, 1] - origin_y
         z = positions[k, 2]
-        if not (px >= kx0 - tol_x and px <= kx1 + tol_x and py >= ky0 - tol_y
-                and py <= ky1 + tol_y and math.isfinite(z)):
+        if not (px >= lo_x and px <= hi_x and py >= lo_y and py <= hi_y and math.isfinite(z)):
             out[k] = np.nan
             continue
         if p == 3:
