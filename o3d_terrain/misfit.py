@@ -44,7 +44,7 @@ from ._kernels import local_plane as _lp
 __all__ = ["misfit_thresholds", "widened_thresholds", "block_size", "MISFIT_FACTOR",
            "MISFIT_HIGH", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
            "MISFIT_REACH", "MISFIT_PLANE_MIN_POINTS", "MISFIT_PLANE_ROUNDS",
-           "local_plane_terrain"]
+           "local_plane_terrain", "misfit_reach"]
 
 #: threshold = this many robust misfit scales (the factor of the global automatic threshold)
 MISFIT_FACTOR = 3.5
@@ -226,6 +226,13 @@ def block_size(surface) -> float:
     return MISFIT_BLOCK * spacing
 
 
+def misfit_reach(block: float) -> float:
+    """How far (m) terrain detail the surface misses lies from where the data pin it, for
+    blocks of side ``block``: :data:`MISFIT_REACH` control spacings (the slope term's reach and
+    the local planes' radius)."""
+    return MISFIT_REACH * block / MISFIT_BLOCK
+
+
 def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: float, *,
                       block: float, factor: float = MISFIT_FACTOR, high: float = MISFIT_HIGH,
                       cell: float = MISFIT_CELL, significant: float = MISFIT_SIGNIFICANT,
@@ -244,7 +251,7 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
         sensor, so that a sensor's tilt does not count as slope);
     with it, the points of widened blocks get at least min(threshold + ``reach`` x |grad S|,
     ``high``): terrain detail the surface cannot follow lies up to ``reach`` (default half a
-    control spacing, :data:`MISFIT_REACH` x block / :data:`MISFIT_BLOCK`) away from where the
+    control spacing, :func:`misfit_reach` of the block) away from where the
     data pin the surface, so on a slope it departs from the surface by up to reach x
     tan(slope). Points of blocks that were not widened keep ``threshold``."""
     p = np.asarray(positions, dtype=np.float64)
@@ -287,7 +294,7 @@ def widened_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: fl
     _spread_blocks(out, p, h, local, x_min, y_min, cell * per_block, nbx, nby)
     if grade is not None:
         if reach is None:
-            reach = MISFIT_REACH * block / MISFIT_BLOCK
+            reach = misfit_reach(block)
         wide = np.flatnonzero(out > threshold)
         if wide.size:
             g = np.asarray(grade(p[wide, 0], p[wide, 1]), dtype=np.float64)

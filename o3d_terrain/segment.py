@@ -27,8 +27,7 @@ import numpy as np
 from ._kernels import bspline as _bs
 from ._kernels import foot as _foot
 from .errors import InputError
-from .misfit import (MISFIT_BLOCK, MISFIT_REACH, block_size, local_plane_terrain,
-                     widened_thresholds)
+from .misfit import block_size, local_plane_terrain, misfit_reach, widened_thresholds
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
@@ -323,7 +322,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         terrain = labels == TerrainLabel.TERRAIN
         if candidates.size and local_plane_terrain(
                 p, h, terrain, candidates,
-                radius=MISFIT_REACH * block_size(surface) / MISFIT_BLOCK, threshold=threshold):
+                radius=misfit_reach(block_size(surface)), threshold=threshold):
             labels[candidates[terrain[candidates]]] = TerrainLabel.TERRAIN
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
