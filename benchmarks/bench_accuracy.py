@@ -15,7 +15,8 @@
 4. ``--only steep``: held-out steep scenes (:func:`steep_scenes`), lidar and tilted lidar
    (or the lidar sensors of ``--sensors``), columns as in 1.
 ``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
-sensors, for the synthetic and the steep scenes.
+sensors, for the synthetic and the steep scenes; ``--sensors high_mount,high_pitched,lidar128,
+low_mount``: lidars mounted as no development scene was (:data:`MOUNTED_LIDARS`).
 
 Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
 
@@ -83,7 +84,18 @@ SENSORS = ("lidar", "stereo", "tilt")
 #: sensors available besides the default ones: ``lidar16``, a 16-channel spinning lidar (2° apart
 #: over ±15°, 0.2° azimuth steps, like the common 16-line units): rings metres apart on the
 #: ground, what the sparse-scan sections of docs/algorithm.md measure
-EXTRA_SENSORS = ("lidar16",)
+EXTRA_SENSORS = ("lidar16", "high_mount", "high_pitched", "lidar128", "low_mount")
+#: spinning lidars mounted as the development scenes never were (``--sensors``), for the
+#: held-out mounting table of docs/algorithm.md: a haul truck's 64-channel unit 3.5 m up
+#: (``high_mount``), the same pitched 12° down (``high_pitched``), a 128-channel ±22.5° unit
+#: 2 m up (``lidar128``) and a 32-channel unit 0.6 m up on a small robot (``low_mount``)
+MOUNTED_LIDARS = {
+    "high_mount": dict(sensor_height=3.5, beams=64, fov_deg=(-30.0, 10.0), azimuth_steps=1200),
+    "high_pitched": dict(sensor_height=3.5, tilt_deg=(12.0, 0.0), beams=64,
+                         fov_deg=(-30.0, 10.0), azimuth_steps=1200),
+    "lidar128": dict(sensor_height=2.0, beams=128, fov_deg=(-22.5, 22.5), azimuth_steps=1024),
+    "low_mount": dict(sensor_height=0.6, beams=32, fov_deg=(-25.0, 10.0), azimuth_steps=1200),
+}
 F1_THRESHOLD = 0.2  # m above the surface, fixed for ours and for the exact terrain
 BELOW_THRESHOLD = 0.5  # m below (the segment_points default)
 OBSTACLE_HEIGHT = 0.3  # obstacle points higher than this count in the obstacle recall
@@ -133,6 +145,8 @@ def synthetic_row(scene_name, sensor: str, method: str) -> dict[str, float]:
         cloud = sample_lidar(scene, tilt_deg=(5.0, 3.0), seed=0)
     elif sensor == "lidar16":
         cloud = sample_lidar(scene, beams=16, fov_deg=(-15.0, 15.0), azimuth_steps=1800, seed=0)
+    elif sensor in MOUNTED_LIDARS:
+        cloud = sample_lidar(scene, seed=0, **MOUNTED_LIDARS[sensor])
     else:
         cloud = sample_stereo(scene, seed=0)
     positions = np.asarray(cloud.positions, dtype=np.float64)
