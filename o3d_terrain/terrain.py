@@ -63,6 +63,13 @@ MIN_COMPACT_POINTS = 3
 #: compact neighbours a cell with fewer points needs to be called compact
 SPARSE_SUPPORT = 2
 
+#: a connected run of compact cells the coarse layouts dropped (weight under half their base)
+#: that spans at least this far (m) is terrain the coarse layouts could not follow (a berm, a
+#: ditch, an embankment seen from a high mount), not an object: the finest layout starts them
+#: at their base weight again. Compact objects a vehicle meets (car and truck roofs, bushes)
+#: span less (docs/algorithm.md, "Long terrain the coarse layouts dropped")
+LONG_TERRAIN_SPAN = 10.0
+
 
 @dataclass(frozen=True)
 class IterationRecord:
@@ -265,7 +272,7 @@ def fit_grid_detailed(
                 _, protected = overhung_ground_cells(
                     grid, positions, connected, compact, samples, layer=layer,
                     tolerance=3.0 * noise_floor, spread=spread, widen=0.5 * layer)
-            prior = (protected, spread)
+            prior = (protected, spread, compact)
         if cell_plane and terrain_prior:
             # eq. 1 about the cell's plane where all its points are terrain (the prior's
             # compact cells): on a slope eq. 1 about the mean sits about rise / sqrt(12) low,
@@ -288,7 +295,7 @@ def fit_grid_detailed(
         with one_blas_thread():  # small banded solves: BLAS threads cost more than they give
             fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree,
                               rational, smoothing, noise_floor, max_iterations, prior,
-                              grid_noise, z0, grid.state)
+                              grid_noise, z0, grid.state, float(grid.cell_size))
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
     if method == "paper":
         samples = np.where(valid, samples + z0, np.nan)
@@ -439,10 +446,14 @@ def _layouts(n_max, degree):
 
 
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
-                noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0, state=None):
+                noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0, state=None,
+                cell_size=0.0):
     """The robust loop on samples ``z`` (relative to z0) and base weights ``base``; returns
     (Q, R, basis, W, samples, equalized, outliers, records, noise) with the samples in world
-    z on the cells of ``state`` != 0 (default: base > 0), NaN elsewhere."""
+    z on the cells of ``state`` != 0 (default: base > 0), NaN elsewhere. ``prior``: (m0, m1)
+    grids (protected cells, their threshold widening, the terrain prior's compact cells) or
+    None. ``cell_size`` (m, with ``prior``): the grid's, for the runs of
+    :func:`_restore_long_terrain` (0: none)."""
     above_k = 2.5  # threshold above the surface, in noise scales
     below_k = 6.0  # threshold below the surface (low outliers), in noise scales
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
@@ -507,6 +518,11 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             (coarse_surface, coarse_denominators)
         coverage = _project(basis, np.ones(on.size), grid_cells)  # remap denominator
         passes = 4 if final else 2
+        if final and level > 0 and use_prior:
+            # the prior's compact cells proper, not the canopy rule's (a roof's edge can pass
+            # that rule): tests/test_ground_layer.py, the 30 m building
+            w = _restore_long_terrain(w, base_cells, prior[2].ravel()[valid_cells],
+                                      valid_cells, z_start.shape, cell_size)
         previous_w = w
         for k in range(passes):
             iteration += 1
@@ -556,6 +572,26 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
         above_k * noise, z_start, z0)
     return q, rr, basis_final, weights_grid, samples_grid, equalized_grid, outliers, records, \
         noise
+
+
+def _restore_long_terrain(w, base, compact, valid_cells, shape, cell_size):
+    """``w`` with the compact cells the coarse layouts dropped (w < base / 2) back at their
+    base weight where they form an 8-connected run spanning at least
+    :data:`LONG_TERRAIN_SPAN` along x or y (a copy when any changes; ``w`` itself otherwise).
+    Vectors over the valid cells (``valid_cells``: their flat indices in the grid of
+    ``shape``)."""
+    dropped = compact & (w < 0.5 * base)
+    if cell_size <= 0 or not dropped.any():
+        return w
+    where = np.flatnonzero(dropped)
+    long_run = _tk.long_runs(valid_cells[where], shape[0], shape[1],
+                             math.ceil(LONG_TERRAIN_SPAN / cell_size - 1e-9))
+    if not long_run.any():
+        return w
+    restore = where[long_run]
+    w = w.copy()
+    w[restore] = base[restore]
+    return w
 
 
 def _noise_update(grid_noise, surface, z, z0, measured):

@@ -487,3 +487,85 @@ def test_grid_stage_gathers_the_planes_the_fit_defaults_read(rng):
     assert other.tilt_spread == 0.1
     with pytest.raises(InputError, match="need the points"):
         with_cell_planes(quantize_points(positions, cell_size=0.5), None)
+
+
+def test_long_runs_of_dropped_compact_cells_get_their_weight_back():
+    """At the finest layout the compact cells the coarse layouts dropped get their base weight
+    again where they run for LONG_TERRAIN_SPAN or more (a berm), not where they form a patch
+    the size of a vehicle's roof, and never when they are not compact."""
+    from o3d_terrain.terrain import LONG_TERRAIN_SPAN, _restore_long_terrain
+
+    shape, cell = (60, 40), 0.5
+    flat = np.arange(shape[0] * shape[1]).reshape(shape)
+    long_run = flat[5:5 + int(LONG_TERRAIN_SPAN / cell), 10]  # 10 m, one cell wide
+    diagonal = flat[np.arange(30, 50), np.arange(15, 35)]  # 10 m along each axis, 8-connected
+    patch = flat[40:48, 2:6].ravel()  # a 4 m x 2 m roof
+    not_compact = flat[5:45, 30]  # 20 m, dropped, but the prior calls it no terrain
+    valid = np.sort(np.concatenate([flat[::3].ravel(), long_run, diagonal, patch,
+                                    not_compact]))
+    valid = np.unique(valid)
+    index = {c: k for k, c in enumerate(valid)}
+    base = np.ones(valid.size)
+    w = np.ones(valid.size)
+    compact = np.zeros(valid.size, bool)
+    for cells, is_compact in ((long_run, True), (diagonal, True), (patch, True),
+                              (not_compact, False)):
+        at = [index[c] for c in cells]
+        w[at] = 0.01
+        compact[at] = is_compact
+    before = w.copy()
+    out = _restore_long_terrain(w, base, compact, valid, shape, cell)
+    np.testing.assert_array_equal(w, before)  # the input is not changed
+    for cells, restored in ((long_run, True), (diagonal, True), (patch, False),
+                            (not_compact, False)):
+        at = [index[c] for c in cells]
+        assert np.all(out[at] == (1.0 if restored else 0.01))
+    short = long_run[:-2]  # 9 m: left dropped
+    w2 = np.ones(valid.size)
+    w2[[index[c] for c in short]] = 0.01
+    assert _restore_long_terrain(w2, base, compact, valid, shape, cell) is w2
+
+
+def test_a_berm_seen_from_a_high_mount_stays_terrain():
+    """A 64-channel lidar 3.5 m up (a haul truck's) sees the top of a 1 m berm at the edge of
+    its blind circle with little of the flanks: the coarse layouts drop the top, and before
+    the finest layout gave such long runs their weight back the berm top was labelled
+    obstacle (F1 0.957; docs/algorithm.md, "Long terrain the coarse layouts dropped")."""
+    from o3d_terrain import segment_terrain
+    from o3d_terrain.synthetic import default_obstacles, make_scene, sample_lidar
+
+    scene = make_scene("ditch_berm", seed=0).with_obstacles(default_obstacles(0))
+    cloud = sample_lidar(scene, sensor_height=3.5, beams=64, fov_deg=(-30.0, 10.0),
+                         azimuth_steps=1200, seed=0)
+    positions = np.asarray(cloud.positions, dtype=np.float64)
+    usable = ~cloud.is_outlier
+    truth = usable & ~cloud.is_obstacle
+    _, inliers = segment_terrain(positions)
+    predicted = np.zeros(len(positions), bool)
+    predicted[inliers] = True
+    tp = np.sum(predicted & truth)
+    f1 = 2 * tp / (np.sum(predicted & usable) + np.sum(truth))
+    assert f1 > 0.98
+    tall = usable & cloud.is_obstacle & (cloud.true_height_above_terrain > 0.3)
+    assert np.mean(~predicted[tall]) > 0.99
+
+
+def test_long_runs_kernel_matches_scipy_labels(rng):
+    """_kernels.terrain.long_runs against scipy.ndimage's 8-connected labels and their
+    bounding boxes on random sparse masks."""
+    from scipy import ndimage
+
+    from o3d_terrain._kernels.terrain import long_runs
+
+    for trial in range(20):
+        shape = (int(rng.integers(1, 40)), int(rng.integers(1, 40)))
+        mask = rng.random(shape) < rng.uniform(0.05, 0.5)
+        cells = rng.permutation(np.flatnonzero(mask))  # any order
+        span = int(rng.integers(1, 12))
+        runs, count = ndimage.label(mask, structure=np.ones((3, 3), bool))
+        long_label = np.zeros(count + 1, bool)
+        for k, box in enumerate(ndimage.find_objects(runs)):
+            long_label[k + 1] = max(box[0].stop - box[0].start,
+                                    box[1].stop - box[1].start) >= span
+        expected = long_label[runs.ravel()[cells]]
+        np.testing.assert_array_equal(long_runs(cells, shape[0], shape[1], span), expected)

@@ -448,3 +448,59 @@ def gather_cells(base, z, measured, compact, spread, use_prior):
                 spread_cells[k] = spread[c]
             k += 1
     return cells, z_cells, base_cells, measured_cells, compact_cells, spread_cells
+
+
+@numba.njit(cache=True)
+def long_runs(cells, m0, m1, min_span):
+    """For each of ``cells`` (distinct flat indices into a C-ordered (m0, m1) grid): whether
+    the 8-connected run of ``cells`` it belongs to spans at least ``min_span`` cells along the
+    first or the second axis (bounding box). One flood fill over the given cells only, with a
+    scratch mark per grid cell: what ``scipy.ndimage.label`` and ``find_objects`` give, at a
+    cost that follows the number of cells, not the grid's."""
+    n = cells.shape[0]
+    slot = np.full(m0 * m1, -1, np.int64)  # position in ``cells`` of a grid cell, -1: none
+    for k in range(n):
+        slot[cells[k]] = k
+    run = np.full(n, -1, np.int64)
+    stack = np.empty(n, np.int64)
+    members = np.empty(n, np.int64)
+    out = np.zeros(n, np.bool_)
+    runs = 0
+    for start in range(n):
+        if run[start] >= 0:
+            continue
+        run[start] = runs
+        stack[0] = start
+        top = 1
+        size = 0
+        lo0 = hi0 = cells[start] // m1
+        lo1 = hi1 = cells[start] % m1
+        while top > 0:
+            top -= 1
+            k = stack[top]
+            members[size] = k
+            size += 1
+            i = cells[k] // m1
+            j = cells[k] % m1
+            lo0 = min(lo0, i)
+            hi0 = max(hi0, i)
+            lo1 = min(lo1, j)
+            hi1 = max(hi1, j)
+            for di in range(-1, 2):
+                ii = i + di
+                if ii < 0 or ii >= m0:
+                    continue
+                for dj in range(-1, 2):
+                    jj = j + dj
+                    if jj < 0 or jj >= m1:
+                        continue
+                    other = slot[ii * m1 + jj]
+                    if other >= 0 and run[other] < 0:
+                        run[other] = runs
+                        stack[top] = other
+                        top += 1
+        if max(hi0 - lo0, hi1 - lo1) + 1 >= min_span:
+            for q in range(size):
+                out[members[q]] = True
+        runs += 1
+    return out
