@@ -16,8 +16,8 @@
    (or the lidar sensors of ``--sensors``), columns as in 1.
 ``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
 sensors, for the synthetic and the steep scenes; ``--sensors high_mount,high_pitched,lidar128,
-low_mount``: lidars mounted as no development scene was, ``spurious``: a 64-channel lidar with
-0.5 % spurious returns (:data:`MOUNTED_LIDARS`).
+low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurious``: a
+64-channel lidar with 0.5 % spurious returns (:data:`MOUNTED_LIDARS`).
 
 Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
 
@@ -85,7 +85,8 @@ SENSORS = ("lidar", "stereo", "tilt")
 #: sensors available besides the default ones: ``lidar16``, a 16-channel spinning lidar (2° apart
 #: over ±15°, 0.2° azimuth steps, like the common 16-line units): rings metres apart on the
 #: ground, what the sparse-scan sections of docs/algorithm.md measure
-EXTRA_SENSORS = ("lidar16", "high_mount", "high_pitched", "lidar128", "low_mount", "spurious")
+EXTRA_SENSORS = ("lidar16", "high_mount", "high_pitched", "lidar128", "low_mount", "pitch30",
+                 "roll25", "spurious")
 #: spinning lidars mounted as the development scenes never were (``--sensors``), for the
 #: held-out mounting table of docs/algorithm.md: a haul truck's 64-channel unit 3.5 m up
 #: (``high_mount``), the same pitched 12° down (``high_pitched``), a 128-channel ±22.5° unit
@@ -96,6 +97,12 @@ MOUNTED_LIDARS = {
                          fov_deg=(-30.0, 10.0), azimuth_steps=1200),
     "lidar128": dict(sensor_height=2.0, beams=128, fov_deg=(-22.5, 22.5), azimuth_steps=1024),
     "low_mount": dict(sensor_height=0.6, beams=32, fov_deg=(-25.0, 10.0), azimuth_steps=1200),
+    # a 64-channel +-22.5 degree unit 2 m up, pitched 30 degrees down or rolled 25 degrees (a
+    # vehicle across a side slope), the tilt left in the cloud (the sensor's frame)
+    "pitch30": dict(sensor_height=2.0, tilt_deg=(30.0, 0.0), beams=64, fov_deg=(-22.5, 22.5),
+                    azimuth_steps=1200),
+    "roll25": dict(sensor_height=2.0, tilt_deg=(0.0, 25.0), beams=64, fov_deg=(-22.5, 22.5),
+                   azimuth_steps=1200),
     # 64 channels 1.8 m up with 0.5 % spurious returns (multipath, dust), moved along their
     # beam to 0.5-1.5 times the true range: about half of them below the ground; the
     # outliers are left out of the scores (docs/algorithm.md, "Held-out mountings")
