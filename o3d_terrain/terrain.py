@@ -360,23 +360,10 @@ def sensor_ground_plane(grid: HeightGrid, sensor_origin: Sequence[float], *,
     spread (plus 5 cm) above it (objects). (0, 0) with fewer than ``min_cells`` cells there
     (an airborne tile's sensor outside the grid)."""
     low = grid.lowest if grid.lowest is not None else grid.z
-    dx = grid.x_centers - float(sensor_origin[0])
-    dy = grid.y_centers - float(sensor_origin[1])
-    near = (grid.state == MEASURED) & np.isfinite(low) & \
-        (dx[:, None] ** 2 + dy[None, :] ** 2 <= radius * radius)
-    if int(near.sum()) < min_cells:
-        return 0.0, 0.0
-    ix, iy = np.nonzero(near)
-    x, y, z = dx[ix], dy[iy], low[near]
-    keep = np.ones(z.size, bool)
-    for _ in range(3):
-        design = np.column_stack([x[keep], y[keep], np.ones(int(keep.sum()))])
-        (gx, gy, c), *_ = np.linalg.lstsq(design, z[keep], rcond=None)
-        residual = z - (gx * x + gy * y + c)
-        spread = 1.4826 * float(np.median(np.abs(residual[keep]))) + 0.05
-        keep = residual < 2.0 * spread
-        if int(keep.sum()) < min_cells:
-            break
+    gx, gy, _ = _ground.ground_plane(
+        np.ascontiguousarray(low, dtype=np.float64), grid.state == MEASURED, grid.x_centers,
+        grid.y_centers, float(sensor_origin[0]), float(sensor_origin[1]), float(radius),
+        int(min_cells), 3)
     return float(gx), float(gy)
 
 

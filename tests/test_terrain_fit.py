@@ -583,6 +583,10 @@ def test_sensor_ground_plane_finds_the_tilt_and_ignores_objects(rng):
     assert abs(gx - 0.3) < 0.01 and abs(gy + 0.1) < 0.01
     # a sensor outside the grid (an airborne tile's): no plane
     assert sensor_ground_plane(grid, (500.0, 500.0, 0.0)) == (0.0, 0.0)
+    # measured cells along one line (a single scan line): no plane either
+    line = np.column_stack([np.linspace(-10, 10, 400), np.zeros(400), np.zeros(400)])
+    assert sensor_ground_plane(quantize_points(line, cell_size=0.5), (0.0, 0.0, 0.0),
+                               min_cells=10) == (0.0, 0.0)
 
 
 def test_a_rolled_sensor_keeps_a_steep_ramp_connected():
