@@ -18,6 +18,7 @@ equalize samples that lie above the surface, add control points, repeat. Two met
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -34,8 +35,8 @@ from .spline import GridBasis, TerrainSurface
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "terrain_prior_mask", "METHODS", "MAX_SLOPE_DEG",
-           "NOISE_FLOOR"]
+           "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
+           "MAX_SLOPE_DEG", "NOISE_FLOOR"]
 
 METHODS = ("robust", "paper")
 
@@ -69,6 +70,16 @@ SPARSE_SUPPORT = 2
 #: at their base weight again. Compact objects a vehicle meets (car and truck roofs, bushes)
 #: span less (docs/algorithm.md, "Long terrain the coarse layouts dropped")
 LONG_TERRAIN_SPAN = 10.0
+
+#: a sensor tilted more than this (deg) against the ground around it has the terrain prior's
+#: slope tests made against that ground's plane: pitch or roll adds to every slope the prior
+#: sees in the sensor's frame (docs/algorithm.md, "Held-out mountings"); below it, none
+PRIOR_LEVEL_MIN_TILT_DEG = 5.0
+
+#: the ground plane under the sensor for PRIOR_LEVEL_MIN_TILT_DEG: from the lowest points of
+#: the measured cells within this radius (m) of the sensor, at least this many cells
+PRIOR_LEVEL_RADIUS = 15.0
+PRIOR_LEVEL_MIN_CELLS = 50
 
 
 @dataclass(frozen=True)
@@ -140,6 +151,7 @@ def fit_grid_detailed(
     ground_layer: bool = True,
     range_noise: RangeNoise | None = None,
     cell_plane: bool = False,
+    sensor_origin: Sequence[float] | None = None,
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -189,6 +201,12 @@ def fit_grid_detailed(
         sits about rise / sqrt(12) below a sloped cell's terrain (docs/algorithm.md, "Eq. 1
         with the in-cell slope removed"). False here (a grid made without the planes);
         fit_terrain, segment_terrain and RationalBSplineTerrain default to True.
+    sensor_origin: (robust, with ``terrain_prior``) the sensor's (x, y, z) in the grid's
+        coordinates, or None. When the ground within PRIOR_LEVEL_RADIUS of it tilts by more
+        than PRIOR_LEVEL_MIN_TILT_DEG (a pitched or rolled sensor, the cloud in its frame),
+        the prior's connectivity measures slope against that ground's plane
+        (:func:`sensor_ground_plane`); its compact test does not. None = the grid's z is
+        level.
     """
     problems = []
     if method not in METHODS:
@@ -252,8 +270,9 @@ def fit_grid_detailed(
         prior = None
         compact = np.zeros((0, 0), bool)
         if terrain_prior:
-            connected, compact = _terrain_prior(grid, max_slope_deg, gap_slope_deg,
-                                                max_obstacle_width, 3.0 * noise_floor)
+            connected, compact = _terrain_prior(
+                grid, max_slope_deg, gap_slope_deg, max_obstacle_width, 3.0 * noise_floor,
+                _levelled(grid, sensor_origin))
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow),
             # that rise measured to compact neighbours only: a wall or a bush face next to
@@ -333,10 +352,50 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = MAX_SLOPE_DEG
     return _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance)
 
 
-def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance):
+def sensor_ground_plane(grid: HeightGrid, sensor_origin: Sequence[float], *,
+                        radius: float = PRIOR_LEVEL_RADIUS,
+                        min_cells: int = PRIOR_LEVEL_MIN_CELLS) -> tuple[float, float]:
+    """Gradient (dz/dx, dz/dy) of the ground plane around the sensor: a least-squares plane
+    through the lowest points of the measured cells within ``radius`` m (x/y) of
+    ``sensor_origin``, refitted three times without the cells more than twice the robust
+    spread (plus 5 cm) above it (objects). (0, 0) with fewer than ``min_cells`` cells there
+    (an airborne tile's sensor outside the grid)."""
+    low = grid.lowest if grid.lowest is not None else grid.z
+    gx, gy, _ = _ground.ground_plane(
+        np.ascontiguousarray(low, dtype=np.float64), grid.state == MEASURED, grid.x_centers,
+        grid.y_centers, float(sensor_origin[0]), float(sensor_origin[1]), float(radius),
+        int(min_cells), 3)
+    return float(gx), float(gy)
+
+
+def _levelled(grid: HeightGrid, sensor_origin) -> HeightGrid:
+    """``grid`` with the plane of :func:`sensor_ground_plane` taken off its heights (z,
+    lowest, highest) when that plane tilts by more than PRIOR_LEVEL_MIN_TILT_DEG; ``grid``
+    itself otherwise or without ``sensor_origin``: the prior's slope tests then measure slope
+    against the ground the sensor stands on."""
+    if sensor_origin is None:
+        return grid
+    gx, gy = sensor_ground_plane(grid, sensor_origin)
+    if math.degrees(math.atan(math.hypot(gx, gy))) <= PRIOR_LEVEL_MIN_TILT_DEG:
+        return grid
+    plane = gx * (grid.x_centers - float(sensor_origin[0]))[:, None] + \
+        gy * (grid.y_centers - float(sensor_origin[1]))[None, :]
+    return dataclasses.replace(
+        grid, z=grid.z - plane,
+        lowest=None if grid.lowest is None else grid.lowest - plane,
+        highest=None if grid.highest is None else grid.highest - plane)
+
+
+def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance,
+                   level=None):
     """(connected, compact) of :func:`terrain_prior_mask`. The fit widens compact cells by
     :func:`o3d_terrain._kernels.ground.compact_rise`, not by the rise
-    :func:`o3d_terrain._kernels.ground.compact_cells` tests them with."""
+    :func:`o3d_terrain._kernels.ground.compact_cells` tests them with. ``level``: the grid
+    with the ground plane under a tilted sensor taken off (:func:`_levelled`), for the
+    connectivity's slope tests; the compact test stays on ``grid``, whose cells' own extents
+    (highest - lowest) hold the tilt's rise across the cell, so its rise to the neighbours
+    must hold it too (levelled, it dropped a 5-degree stereo frame's compact cells by a
+    quarter)."""
     measured = grid.state == MEASURED
     lowest = grid.lowest if grid.lowest is not None else grid.z
     low = np.where(measured & np.isfinite(lowest), lowest, np.inf)
@@ -344,10 +403,15 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     c = float(grid.cell_size)
     step = math.tan(math.radians(max_slope_deg))
     radius = max(1, int(round(max_obstacle_width / 2 / c)))
+    slope_low = low
+    if level is not None and level is not grid:
+        level_lowest = level.lowest if level.lowest is not None else level.z
+        slope_low = np.where(measured, level_lowest, np.inf)
     # the gap envelope, walls (above the slope cone of a neighbour) not crossed, seeds
     # (window_min) not on walls: in one kernel
-    crossed, seeds = _ground.prior_seeds(low, measured, c, math.tan(math.radians(gap_slope_deg)),
-                                         step, float(tolerance), radius)
+    crossed, seeds = _ground.prior_seeds(slope_low, measured, c,
+                                         math.tan(math.radians(gap_slope_deg)), step,
+                                         float(tolerance), radius)
     connected = measured & _ground.connected_terrain(crossed, seeds, c, step, float(tolerance))
     # rise: the terrain's rise across one cell, what points on the terrain may span inside it.
     # Eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell

@@ -18,6 +18,8 @@ Arrays are ``[ix, iy]`` like the height grid. NumPy in, NumPy out.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -365,3 +367,69 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
             else:
                 seeds[i, j] = measured[i, j] and h <= lowest_around[i, j]
     return gap, seeds
+
+
+@numba.njit(cache=True)
+def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells, rounds):
+    """(gx, gy, cells) of a least-squares plane z = gx (x - sx) + gy (y - sy) + c through
+    ``low`` of the ``measured`` cells whose centre lies within ``radius`` of (sx, sy), refitted
+    ``rounds`` - 1 more times without the cells more than twice the robust spread (1.4826
+    median absolute residual, plus 0.05) above it; (0, 0, cells) when fewer than ``min_cells``
+    cells remain or the cells lie on one line. The cell block searched is the radius' bounding
+    box, not the whole grid."""
+    c = x_centers[1] - x_centers[0] if x_centers.shape[0] > 1 else 1.0
+    i0 = max(0, int(math.floor((sx - radius - x_centers[0]) / c)))
+    i1 = min(x_centers.shape[0], int(math.ceil((sx + radius - x_centers[0]) / c)) + 1)
+    cy = y_centers[1] - y_centers[0] if y_centers.shape[0] > 1 else 1.0
+    j0 = max(0, int(math.floor((sy - radius - y_centers[0]) / cy)))
+    j1 = min(y_centers.shape[0], int(math.ceil((sy + radius - y_centers[0]) / cy)) + 1)
+    size = max(0, i1 - i0) * max(0, j1 - j0)
+    x = np.empty(size)
+    y = np.empty(size)
+    z = np.empty(size)
+    n = 0
+    r2 = radius * radius
+    for i in range(i0, i1):
+        dx = x_centers[i] - sx
+        for j in range(j0, j1):
+            dy = y_centers[j] - sy
+            if measured[i, j] and math.isfinite(low[i, j]) and dx * dx + dy * dy <= r2:
+                x[n] = dx
+                y[n] = dy
+                z[n] = low[i, j]
+                n += 1
+    if n < min_cells:
+        return 0.0, 0.0, n
+    keep = np.ones(n, np.bool_)
+    residual = np.empty(n)
+    gx = 0.0
+    gy = 0.0
+    for _ in range(rounds):
+        sxx = sxy = sx1 = syy = sy1 = s1 = sxz = syz = sz = 0.0
+        for k in range(n):
+            if keep[k]:
+                sxx += x[k] * x[k]
+                sxy += x[k] * y[k]
+                sx1 += x[k]
+                syy += y[k] * y[k]
+                sy1 += y[k]
+                s1 += 1.0
+                sxz += x[k] * z[k]
+                syz += y[k] * z[k]
+                sz += z[k]
+        a = np.array([[sxx, sxy, sx1], [sxy, syy, sy1], [sx1, sy1, s1]])
+        if abs(np.linalg.det(a)) < 1e-9 * max(sxx * syy * s1, 1e-300):
+            return 0.0, 0.0, n
+        g = np.linalg.solve(a, np.array([sxz, syz, sz]))
+        gx = g[0]
+        gy = g[1]
+        kept = 0
+        for k in range(n):
+            residual[k] = z[k] - (gx * x[k] + gy * y[k] + g[2])
+        spread = 1.4826 * np.median(np.abs(residual[keep])) + 0.05
+        for k in range(n):
+            keep[k] = residual[k] < 2.0 * spread
+            kept += keep[k]
+        if kept < min_cells:
+            break
+    return gx, gy, n

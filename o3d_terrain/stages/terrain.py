@@ -100,8 +100,9 @@ class RationalBSplineTerrain(Stage):
              "frame's 'range_noise' product when a source made one (StereoToCloud with "
              "disparity_noise_px), else one noise scale for all cells (o3d_terrain.noise)")
     sensor_origin: tuple = option((0.0, 0.0, 0.0), kind=float, length=3, unit="m",
-                                  help="sensor position in cloud coordinates, for range_noise "
-                                       "and refine's labels")
+                                  help="sensor position in cloud coordinates, for range_noise, "
+                                       "refine's labels and the terrain prior's level (the "
+                                       "ground around it, when the sensor is tilted)")
 
     def check_options(self) -> list[str]:
         if self.control_points is not None and min(self.control_points) < self.degree + 1:
@@ -133,7 +134,7 @@ class RationalBSplineTerrain(Stage):
             max_obstacle_width=self.max_obstacle_width,
             positions=positions if self.ground_layer else None,
             ground_layer=self.ground_layer, range_noise=range_noise,
-            cell_plane=self.cell_plane,
+            cell_plane=self.cell_plane, sensor_origin=self.sensor_origin,
         )
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         # with a range-noise model the loop already weighs each cell's noise, which the refit
