@@ -18,7 +18,6 @@ equalize samples that lie above the surface, add control points, repeat. Two met
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -72,8 +71,9 @@ SPARSE_SUPPORT = 2
 LONG_TERRAIN_SPAN = 10.0
 
 #: a sensor tilted more than this (deg) against the ground around it has the terrain prior's
-#: slope tests made against that ground's plane: pitch or roll adds to every slope the prior
-#: sees in the sensor's frame (docs/algorithm.md, "Held-out mountings"); below it, none
+#: connectivity measure slope against that ground's plane: pitch or roll adds to every slope
+#: the prior sees in the sensor's frame (docs/algorithm.md, "Held-out mountings"); below it,
+#: none
 PRIOR_LEVEL_MIN_TILT_DEG = 5.0
 
 #: the ground plane under the sensor for PRIOR_LEVEL_MIN_TILT_DEG: from the lowest points of
@@ -272,7 +272,7 @@ def fit_grid_detailed(
         if terrain_prior:
             connected, compact = _terrain_prior(
                 grid, max_slope_deg, gap_slope_deg, max_obstacle_width, 3.0 * noise_floor,
-                _levelled(grid, sensor_origin))
+                _level_plane(grid, sensor_origin))
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow),
             # that rise measured to compact neighbours only: a wall or a bush face next to
@@ -361,41 +361,37 @@ def sensor_ground_plane(grid: HeightGrid, sensor_origin: Sequence[float], *,
     spread (plus 5 cm) above it (objects). (0, 0) with fewer than ``min_cells`` cells there
     (an airborne tile's sensor outside the grid)."""
     low = grid.lowest if grid.lowest is not None else grid.z
-    gx, gy, _ = _ground.ground_plane(
+    gx, gy = _ground.ground_plane(
         np.ascontiguousarray(low, dtype=np.float64), grid.state == MEASURED, grid.x_centers,
         grid.y_centers, float(sensor_origin[0]), float(sensor_origin[1]), float(radius),
         int(min_cells), 3)
     return float(gx), float(gy)
 
 
-def _levelled(grid: HeightGrid, sensor_origin) -> HeightGrid:
-    """``grid`` with the plane of :func:`sensor_ground_plane` taken off its heights (z,
-    lowest, highest) when that plane tilts by more than PRIOR_LEVEL_MIN_TILT_DEG; ``grid``
-    itself otherwise or without ``sensor_origin``: the prior's slope tests then measure slope
-    against the ground the sensor stands on."""
+def _level_plane(grid: HeightGrid, sensor_origin) -> np.ndarray | None:
+    """The plane of :func:`sensor_ground_plane` over the grid's cells (heights relative to
+    the sensor's position) when it tilts by more than PRIOR_LEVEL_MIN_TILT_DEG; None
+    otherwise or without ``sensor_origin``. The prior's connectivity takes it off the cells'
+    lowest points, so that it measures slope against the ground the sensor stands on."""
     if sensor_origin is None:
-        return grid
+        return None
     gx, gy = sensor_ground_plane(grid, sensor_origin)
     if math.degrees(math.atan(math.hypot(gx, gy))) <= PRIOR_LEVEL_MIN_TILT_DEG:
-        return grid
-    plane = gx * (grid.x_centers - float(sensor_origin[0]))[:, None] + \
+        return None
+    return gx * (grid.x_centers - float(sensor_origin[0]))[:, None] + \
         gy * (grid.y_centers - float(sensor_origin[1]))[None, :]
-    return dataclasses.replace(
-        grid, z=grid.z - plane,
-        lowest=None if grid.lowest is None else grid.lowest - plane,
-        highest=None if grid.highest is None else grid.highest - plane)
 
 
 def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance,
-                   level=None):
+                   plane=None):
     """(connected, compact) of :func:`terrain_prior_mask`. The fit widens compact cells by
     :func:`o3d_terrain._kernels.ground.compact_rise`, not by the rise
-    :func:`o3d_terrain._kernels.ground.compact_cells` tests them with. ``level``: the grid
-    with the ground plane under a tilted sensor taken off (:func:`_levelled`), for the
-    connectivity's slope tests; the compact test stays on ``grid``, whose cells' own extents
-    (highest - lowest) hold the tilt's rise across the cell, so its rise to the neighbours
-    must hold it too (levelled, it dropped a 5-degree stereo frame's compact cells by a
-    quarter)."""
+    :func:`o3d_terrain._kernels.ground.compact_cells` tests them with. ``plane``: the ground
+    plane under a tilted sensor over the cells (:func:`_level_plane`), taken off the lowest
+    points for the connectivity's slope tests only; the compact test stays on the grid's
+    heights, whose cells' own extents (highest - lowest) hold the tilt's rise across the cell,
+    so its rise to the neighbours must hold it too (levelled, it dropped a 5-degree stereo
+    frame's compact cells by a quarter)."""
     measured = grid.state == MEASURED
     lowest = grid.lowest if grid.lowest is not None else grid.z
     low = np.where(measured & np.isfinite(lowest), lowest, np.inf)
@@ -403,10 +399,7 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     c = float(grid.cell_size)
     step = math.tan(math.radians(max_slope_deg))
     radius = max(1, int(round(max_obstacle_width / 2 / c)))
-    slope_low = low
-    if level is not None and level is not grid:
-        level_lowest = level.lowest if level.lowest is not None else level.z
-        slope_low = np.where(measured, level_lowest, np.inf)
+    slope_low = low if plane is None else low - plane  # inf stays inf where not measured
     # the gap envelope, walls (above the slope cone of a neighbour) not crossed, seeds
     # (window_min) not on walls: in one kernel
     crossed, seeds = _ground.prior_seeds(slope_low, measured, c,

@@ -526,28 +526,35 @@ def test_long_runs_of_dropped_compact_cells_get_their_weight_back():
     assert _restore_long_terrain(w2, base, compact, valid, shape, cell) is w2
 
 
+def _segmented(cloud):
+    """Counts of ``segment_terrain`` on a synthetic cloud with its defaults against the exact
+    terrain: outliers left out, obstacle points more than 0.3 m above the terrain counted in
+    the obstacle recall."""
+    from o3d_terrain import segment_terrain
+    from o3d_terrain.evaluation.metrics import segmentation_counts
+
+    positions = np.asarray(cloud.positions, dtype=np.float64)
+    usable = ~cloud.is_outlier
+    _, inliers = segment_terrain(positions)
+    predicted = np.zeros(len(positions), bool)
+    predicted[inliers] = True
+    tall = cloud.is_obstacle & (cloud.true_height_above_terrain > 0.3)
+    return segmentation_counts(predicted, ~cloud.is_obstacle, scored=usable, obstacle=tall)
+
+
 def test_a_berm_seen_from_a_high_mount_stays_terrain():
     """A 64-channel lidar 3.5 m up (a haul truck's) sees the top of a 1 m berm at the edge of
     its blind circle with little of the flanks: the coarse layouts drop the top, and before
     the finest layout gave such long runs their weight back the berm top was labelled
     obstacle (F1 0.957; docs/algorithm.md, "Long terrain the coarse layouts dropped")."""
-    from o3d_terrain import segment_terrain
     from o3d_terrain.synthetic import default_obstacles, make_scene, sample_lidar
 
     scene = make_scene("ditch_berm", seed=0).with_obstacles(default_obstacles(0))
     cloud = sample_lidar(scene, sensor_height=3.5, beams=64, fov_deg=(-30.0, 10.0),
                          azimuth_steps=1200, seed=0)
-    positions = np.asarray(cloud.positions, dtype=np.float64)
-    usable = ~cloud.is_outlier
-    truth = usable & ~cloud.is_obstacle
-    _, inliers = segment_terrain(positions)
-    predicted = np.zeros(len(positions), bool)
-    predicted[inliers] = True
-    tp = np.sum(predicted & truth)
-    f1 = 2 * tp / (np.sum(predicted & usable) + np.sum(truth))
-    assert f1 > 0.98
-    tall = usable & cloud.is_obstacle & (cloud.true_height_above_terrain > 0.3)
-    assert np.mean(~predicted[tall]) > 0.99
+    counts = _segmented(cloud)
+    assert counts.f1 > 0.98
+    assert counts.obstacle_recall > 0.99
 
 
 def test_long_runs_kernel_matches_scipy_labels(rng):
@@ -594,20 +601,12 @@ def test_a_rolled_sensor_keeps_a_steep_ramp_connected():
     ramp at up to 38 degrees in its frame, and its sparse rings on the ramp left the prior's
     gap cone behind: 0.924 F1 before the prior measured slope against the ground plane
     around the sensor (docs/algorithm.md, "Held-out mountings")."""
-    from o3d_terrain import segment_terrain
     from o3d_terrain.synthetic import Plane, Ramp, Scene, default_obstacles, sample_lidar
 
     scene = Scene("ramp30", (Plane(), Ramp(8, 0, 0, 30.0, 8.0)), default_obstacles(0))
     cloud = sample_lidar(scene, sensor_height=2.0, tilt_deg=(0.0, 25.0), beams=64,
                          fov_deg=(-22.5, 22.5), azimuth_steps=1200, seed=0)
-    positions = np.asarray(cloud.positions, dtype=np.float64)
-    usable = ~cloud.is_outlier
-    truth = usable & ~cloud.is_obstacle
-    _, inliers = segment_terrain(positions)
-    predicted = np.zeros(len(positions), bool)
-    predicted[inliers] = True
-    tp = np.sum(predicted & truth)
-    assert 2 * tp / (np.sum(predicted & usable) + np.sum(truth)) > 0.99
+    assert _segmented(cloud).f1 > 0.99
 
 
 def test_levelled_prior_keeps_the_compact_test_in_the_sensor_frame(rng):
@@ -615,14 +614,14 @@ def test_levelled_prior_keeps_the_compact_test_in_the_sensor_frame(rng):
     not: a cell's own extent holds the tilt's rise across the cell. Levelling the compact test
     too (the first version) left 1 % of a tilted plane's cells compact, and cost a 5-degree
     stereo frame a quarter of them."""
-    from o3d_terrain.terrain import _levelled, _terrain_prior
+    from o3d_terrain.terrain import _level_plane, _terrain_prior
 
     xy = rng.uniform(-15, 15, size=(60000, 2))
     z = np.tan(np.radians(25.0)) * xy[:, 0] + rng.normal(0, 0.01, len(xy))
     grid = quantize_points(np.column_stack([xy, z]), cell_size=0.5)
-    level = _levelled(grid, (0.0, 0.0, 0.0))
-    assert level is not grid  # the plane tilts 25 degrees: levelled
-    connected, compact = _terrain_prior(grid, 45.0, 20.0, 40.0, 0.09, level)
+    plane = _level_plane(grid, (0.0, 0.0, 0.0))
+    assert plane is not None  # the plane tilts 25 degrees: levelled
+    connected, compact = _terrain_prior(grid, 45.0, 20.0, 40.0, 0.09, plane)
     measured = grid.state == MEASURED
     assert connected[measured].mean() > 0.99 and compact[measured].mean() > 0.99
-    assert _levelled(grid, (500.0, 0.0, 0.0)) is grid  # sensor off the grid: as measured
+    assert _level_plane(grid, (500.0, 0.0, 0.0)) is None  # sensor off the grid: as measured

@@ -371,11 +371,11 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
 
 @numba.njit(cache=True)
 def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells, rounds):
-    """(gx, gy, cells) of a least-squares plane z = gx (x - sx) + gy (y - sy) + c through
-    ``low`` of the ``measured`` cells whose centre lies within ``radius`` of (sx, sy), refitted
+    """(gx, gy) of a least-squares plane z = gx (x - sx) + gy (y - sy) + c through ``low`` of
+    the ``measured`` cells whose centre lies within ``radius`` of (sx, sy), refitted
     ``rounds`` - 1 more times without the cells more than twice the robust spread (1.4826
-    median absolute residual, plus 0.05) above it; (0, 0, cells) when fewer than ``min_cells``
-    cells remain or the cells lie on one line. The cell block searched is the radius' bounding
+    median absolute residual, plus 0.05) above it; (0, 0) when fewer than ``min_cells`` cells
+    lie there or the cells lie on one line. The cell block searched is the radius' bounding
     box, not the whole grid."""
     c = x_centers[1] - x_centers[0] if x_centers.shape[0] > 1 else 1.0
     i0 = max(0, int(math.floor((sx - radius - x_centers[0]) / c)))
@@ -399,7 +399,7 @@ def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells,
                 z[n] = low[i, j]
                 n += 1
     if n < min_cells:
-        return 0.0, 0.0, n
+        return 0.0, 0.0
     keep = np.ones(n, np.bool_)
     residual = np.empty(n)
     gx = 0.0
@@ -419,7 +419,7 @@ def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells,
                 sz += z[k]
         a = np.array([[sxx, sxy, sx1], [sxy, syy, sy1], [sx1, sy1, s1]])
         if abs(np.linalg.det(a)) < 1e-9 * max(sxx * syy * s1, 1e-300):
-            return 0.0, 0.0, n
+            return 0.0, 0.0
         g = np.linalg.solve(a, np.array([sxz, syz, sz]))
         gx = g[0]
         gy = g[1]
@@ -432,4 +432,4 @@ def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells,
             kept += keep[k]
         if kept < min_cells:
             break
-    return gx, gy, n
+    return gx, gy
