@@ -14,6 +14,8 @@
    defaults) on the LAS tiles.
 4. ``--only steep``: held-out steep scenes (:func:`steep_scenes`), lidar and tilted lidar
    (or the lidar sensors of ``--sensors``), columns as in 1.
+5. ``--only airborne``: airborne strips over the synthetic scenes (:func:`run_airborne`),
+   ``segment_terrain``'s labels with all defaults; ``--peers`` adds CSF and SMRF.
 ``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
 sensors, for the synthetic and the steep scenes; ``--sensors high_mount,high_pitched,lidar128,
 low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurious``: a
@@ -21,7 +23,8 @@ low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurio
 
 Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
 
-Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep] [--peers]
+Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep,airborne]
+     [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt,lidar16]
      [--no-terrain-prior] [--no-range-noise] [--no-object-feet] [--no-cell-plane] [--no-refine]
 (``--no-object-feet``: label by height alone, ``foot_height=0``; ``--no-refine``: the robust
@@ -41,7 +44,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from o3d_terrain.api import auto_threshold  # noqa: E402
 from o3d_terrain.evaluation.datasets import SYNTHETIC_STEREO_RIG  # noqa: E402
 from o3d_terrain.grid import quantize_points, region_of  # noqa: E402
 from o3d_terrain.noise import RangeNoise  # noqa: E402
@@ -76,8 +78,7 @@ def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None)
 def segment_terrain(positions: np.ndarray, method: str = "robust"):
     """What ``o3d_terrain.segment_terrain`` does with its defaults (automatic threshold)."""
     surface = fit_terrain(positions, method)
-    labels, _ = segment_points(surface, positions, threshold=auto_threshold(surface, positions),
-                               **LABEL_OPTIONS)
+    labels, _ = segment_points(surface, positions, threshold=None, **LABEL_OPTIONS)
     return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN)
 
 SCENES = ("flat", "hills", "ramp", "ditch_berm", "valley", "mounds", "offroad")
@@ -201,6 +202,45 @@ def run_synthetic(method: str, scenes, sensors) -> None:
                   flush=True)
 
 
+def run_airborne(method: str, scenes, peers: bool) -> None:
+    """Airborne strips over the synthetic scenes (``sample_airborne``: 6 pulses/m2 from 300 m,
+    +-15 degree scan, 3 cm noise, projected coordinates), every scene with the default
+    obstacle set plus a 0.4 m rock, a 0.5 m box and a second car: labels of
+    ``segment_terrain`` with all defaults (automatic threshold) against the truth, the
+    surface's RMSE, obstacle recall; ``--peers`` adds CSF and SMRF (package defaults)."""
+    from o3d_terrain.synthetic import Obstacle, default_obstacles, make_scene, sample_airborne
+
+    adapters = []
+    if peers:
+        from o3d_terrain.evaluation.peers import make_peer, peer_status
+
+        status = peer_status()
+        adapters = [make_peer(n, kind="aerial") for n in ("csf", "smrf") if not status.get(n)]
+    extra = (Obstacle("rock", (5.0, 8.0), (1.0, 1.0), 0.4),
+             Obstacle("box", (30.0, 10.0), (2.0, 1.0), 0.5),
+             Obstacle("car", (0.0, -8.0), (4.5, 1.8), 1.5, yaw_deg=45.0))
+    print("| scene | points | RMSE at terrain points (m) | ground F1 | obstacle recall |"
+          + "".join(f" {a.name} F1 | {a.name} obstacle recall |" for a in adapters))
+    print("|---|---|---|---|---|" + "---|---|" * len(adapters))
+    for name in scenes:
+        scene = make_scene(name, seed=0, obstacles=False).with_obstacles(
+            default_obstacles(0) + extra)
+        cloud = sample_airborne(scene, seed=0)
+        positions = np.asarray(cloud.positions, dtype=np.float64)
+        surface, inliers = segment_terrain(positions, method)
+        ours = np.zeros(len(positions), bool)
+        ours[inliers] = True
+        terrain = ~cloud.is_obstacle
+        true_z = cloud.terrain_height(positions[:, 0], positions[:, 1])
+        error = surface(positions[terrain, 0], positions[terrain, 1]) - true_z[terrain]
+        rmse = float(np.sqrt(np.mean(error[np.isfinite(error)] ** 2)))
+        tall = cloud.is_obstacle & (positions[:, 2] - true_z > OBSTACLE_HEIGHT)
+        row = f"| {name} | {len(cloud):,} | {rmse:.3f} |"
+        for ground in [ours] + [a.segment(positions) for a in adapters]:
+            row += f" {f1_score(ground, terrain)[2]:.4f} | {float(np.mean(~ground[tall])):.3f} |"
+        print(row, flush=True)
+
+
 def run_kitti(root: Path, method: str) -> None:
     from o3d_terrain.evaluation.datasets import semantic_kitti_frames
 
@@ -305,6 +345,8 @@ def main() -> None:
     if "steep" in parts:  # held-out steep scenes: lidar sensors only
         run_synthetic(args.method, steep_scenes(),
                       [s for s in sensors if s != "stereo"] or ["lidar", "tilt"])
+    if "airborne" in parts:
+        run_airborne(args.method, args.scenes.split(","), args.peers)
     if "kitti" in parts:
         run_kitti(root, args.method)
     if "las" in parts:

@@ -44,7 +44,7 @@ from ._kernels import local_plane as _lp
 __all__ = ["misfit_thresholds", "widened_thresholds", "block_size", "MISFIT_FACTOR",
            "MISFIT_HIGH", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
            "MISFIT_REACH", "MISFIT_PLANE_MIN_POINTS", "MISFIT_PLANE_ROUNDS",
-           "local_plane_terrain", "misfit_reach"]
+           "local_plane_terrain", "misfit_reach", "plane_radius", "PLANE_POINTS"]
 
 #: threshold = this many robust misfit scales (the factor of the global automatic threshold)
 MISFIT_FACTOR = 3.5
@@ -66,6 +66,9 @@ MISFIT_REACH = 0.5
 MISFIT_PLANE_MIN_POINTS = 4
 #: rounds of the local planes at most (a ridge is taken up from its flanks in a few)
 MISFIT_PLANE_ROUNDS = 20
+#: on a top-down scan (:func:`o3d_terrain.segment.segment_points`), the local planes reach as
+#: far as holds this many terrain points at the scan's density (:func:`plane_radius`)
+PLANE_POINTS = 16
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -329,3 +332,16 @@ def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.
     return int(_lp.local_plane_terrain(p, np.ascontiguousarray(heights, dtype=np.float64),
                                        terrain, idx, float(radius), float(threshold),
                                        int(min_points), int(rounds)))
+
+
+def plane_radius(positions: np.ndarray, terrain: np.ndarray, *, most: float,
+                 points: int = PLANE_POINTS) -> float:
+    """The radius (m) of a disc that holds ``points`` of the ``terrain`` (N,) bool points on
+    average, from their density per occupied square metre; at most ``most`` (0 when none is
+    terrain). A scan of 2 points/m2 gives 1.6 m, one of 40 points/m2 0.36 m: the local plane
+    is as local as the density allows."""
+    density = _lp.points_per_square_metre(np.asarray(positions, dtype=np.float64),
+                                          np.ascontiguousarray(terrain, dtype=np.bool_))
+    if density <= 0.0:
+        return 0.0
+    return min(math.sqrt(points / (math.pi * density)), float(most))

@@ -26,13 +26,15 @@ import numpy as np
 
 from ._kernels import bspline as _bs
 from ._kernels import foot as _foot
+from ._kernels import local_plane as _lp
 from .errors import InputError
-from .misfit import block_size, local_plane_terrain, misfit_reach, widened_thresholds
+from .misfit import (MISFIT_HIGH, block_size, local_plane_terrain, misfit_reach, plane_radius,
+                     widened_thresholds)
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
            "label_heights", "mark_object_feet", "relabel_along_normal", "segment_points",
-           "sensor_ground_gradient", "thresholds", "widen_labels"]
+           "sensor_ground_gradient", "sensor_in_cloud", "thresholds", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m.
 #: The floor covers the terrain's own relief inside a cell, which the surface of 0.5 m cells
@@ -234,6 +236,18 @@ def sensor_ground_gradient(surface: TerrainSurface, positions, heights: np.ndarr
     return float(np.median(gx[ok])), float(np.median(gy[ok]))
 
 
+def sensor_in_cloud(positions, sensor_origin=(0.0, 0.0, 0.0), *,
+                    radius: float = SENSOR_GROUND_RADIUS,
+                    min_points: int = SENSOR_GROUND_MIN_POINTS) -> bool:
+    """Whether at least ``min_points`` of the points lie within ``radius`` m (x/y) of
+    ``sensor_origin``: a vehicle's lidar or stereo camera scans the ground around it; an
+    airborne or photogrammetric tile in projected coordinates has no points near the default
+    origin (the scan is top-down)."""
+    p = _positions(positions)
+    return _lp.count_within(p, float(sensor_origin[0]), float(sensor_origin[1]),
+                            float(radius), int(min_points)) >= min_points
+
+
 def _grade_from_sensor_ground(surface: TerrainSurface, p: np.ndarray, h: np.ndarray,
                               threshold: float, sensor_origin):
     """The misfit's ``grade`` callable: |grad S - g0| at (x, y), g0 the
@@ -266,7 +280,11 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
         local misfit to the ground exceeds the noise, and there measure the points still
         above it against the plane through the terrain around them
-        (:mod:`o3d_terrain.misfit`, :func:`o3d_terrain.misfit.local_plane_terrain`).
+        (:mod:`o3d_terrain.misfit`, :func:`o3d_terrain.misfit.local_plane_terrain`); on a
+        top-down scan (no points near ``sensor_origin``, :func:`sensor_in_cloud`: an airborne
+        tile) measure every point above the threshold, up to
+        :data:`o3d_terrain.misfit.MISFIT_HIGH`, against that plane, its radius from the
+        terrain's density (:func:`o3d_terrain.misfit.plane_radius`).
     along_normal: measure both thresholds along the surface normal instead of vertically
         (the vertical threshold grows by sqrt(1 + |grad S|^2), at most x2, on slopes;
         :func:`relabel_along_normal`); False = vertical thresholds.
@@ -294,6 +312,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     automatic_range = range_coefficient is None
     range_coefficient = 0.0 if automatic_range else range_coefficient
     range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
+    automatic = threshold is None
     if threshold is None:
         threshold = auto_threshold(h)
         if automatic_range:
@@ -324,10 +343,36 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                 p, h, terrain, candidates,
                 radius=misfit_reach(block_size(surface)), threshold=threshold):
             labels[candidates[terrain[candidates]]] = TerrainLabel.TERRAIN
+    if misfit and automatic and isinstance(surface, TerrainSurface) \
+            and not sensor_in_cloud(p, sensor_origin):
+        # a top-down scan: every point up to MISFIT_HIGH above the surface and above its
+        # threshold measured against the local plane of the terrain around it, within the
+        # radius that holds PLANE_POINTS terrain points (docs/algorithm.md, "Local planes on
+        # a top-down scan")
+        _top_down_planes(labels, h, p, threshold, block_size(surface))
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold)
     return labels, h
+
+
+def _top_down_planes(labels: np.ndarray, h: np.ndarray, p: np.ndarray, threshold: float,
+                     block: float) -> int:
+    """In place: OBSTACLE points 0 < h < MISFIT_HIGH that lie at most ``threshold`` above the
+    local plane of the TERRAIN points around them become TERRAIN (the misfit's local planes,
+    :func:`o3d_terrain.misfit.local_plane_terrain`, applied everywhere), the plane's radius
+    from the terrain's density (:func:`o3d_terrain.misfit.plane_radius`, at most ``block``).
+    Returns how many changed."""
+    candidates = np.flatnonzero((labels == TerrainLabel.OBSTACLE) & (h > 0) & (h < MISFIT_HIGH))
+    if candidates.size == 0:
+        return 0
+    terrain = labels == TerrainLabel.TERRAIN
+    radius = plane_radius(p, terrain, most=block)
+    if not local_plane_terrain(p, h, terrain, candidates, radius=radius, threshold=threshold):
+        return 0
+    taken = candidates[terrain[candidates]]
+    labels[taken] = TerrainLabel.TERRAIN
+    return int(taken.size)
 
 
 def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,

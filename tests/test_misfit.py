@@ -209,3 +209,63 @@ def test_local_planes_recover_ridges_in_widened_blocks(rng, monkeypatch):
     r_without, fp_without = scores()
     assert r_with > r_without + 0.015
     assert fp_with <= fp_without
+
+
+def _airborne_mounds():
+    """An airborne strip (6 pulses/m2 from 300 m, projected coordinates) over the gravel
+    mounds with the default obstacles and a 0.4 m rock: no point lies near the origin."""
+    from o3d_terrain.synthetic import Obstacle, default_obstacles, make_scene, sample_airborne
+    scene = make_scene("mounds", seed=0, obstacles=False).with_obstacles(
+        default_obstacles(0) + (Obstacle("rock", (5.0, 8.0), (1.0, 1.0), 0.4),))
+    return sample_airborne(scene, seed=0)
+
+
+def _ground_scores(cloud):
+    mask = np.zeros(len(cloud), bool)
+    mask[segment_terrain(cloud.positions)[1]] = True
+    truth = ~cloud.is_obstacle
+    tp, fp, fn = (mask & truth).sum(), (mask & ~truth).sum(), (~mask & truth).sum()
+    h = cloud.true_height_above_terrain
+    tall = cloud.is_obstacle & (h > 0.3)
+    return 2 * tp / (2 * tp + fp + fn), float(np.mean(~mask[tall]))
+
+
+def test_top_down_scans_measure_points_against_local_planes(monkeypatch):
+    """From the air the 0.5 m cells' surface undercuts the mounds' tops (narrower than the
+    control spacing) and their ground was labelled obstacle (F1 0.989 without the local
+    planes, 0.997 with them); measured against the plane of the terrain around them it is
+    terrain, while every obstacle point more than 0.3 m up stays an obstacle."""
+    import o3d_terrain.segment as seg
+    cloud = _airborne_mounds()
+    assert not seg.sensor_in_cloud(cloud.positions)
+    f1_with, recall_with = _ground_scores(cloud)
+    monkeypatch.setattr(seg, "_top_down_planes", lambda *a, **k: 0)
+    f1_without, recall_without = _ground_scores(cloud)
+    assert f1_with > 0.995 and f1_with > f1_without + 0.005
+    assert recall_with == recall_without == 1.0
+
+
+def test_a_vehicle_scan_is_not_top_down(rng):
+    """sensor_in_cloud: a lidar frame around its sensor is a vehicle's scan; the same points
+    moved 1 km away, or an airborne strip, are not (their labels then use the local planes)."""
+    from o3d_terrain.segment import sensor_in_cloud
+    from o3d_terrain.synthetic import make_scene, sample_lidar
+    frame = sample_lidar(make_scene("flat", seed=0), seed=0).positions
+    assert sensor_in_cloud(frame)
+    assert not sensor_in_cloud(frame + [1000.0, 0.0, 0.0])
+    assert sensor_in_cloud(frame + [1000.0, 0.0, 0.0], (1000.0, 0.0, 0.0))
+    assert not sensor_in_cloud(_airborne_mounds().positions)
+
+
+def test_plane_radius_holds_the_planes_points_at_the_scans_density(rng):
+    """plane_radius: 4 terrain points/m2 give the radius of a disc of PLANE_POINTS of them;
+    obstacle points do not count; ``most`` caps it; no terrain gives 0."""
+    from o3d_terrain.misfit import PLANE_POINTS, plane_radius
+    n = 40 * 40 * 4
+    cloud = np.column_stack([rng.uniform(0, 40, 2 * n), rng.uniform(0, 40, 2 * n),
+                             np.zeros(2 * n)])
+    terrain = np.arange(2 * n) < n
+    expected = np.sqrt(PLANE_POINTS / (np.pi * 4.0))
+    assert abs(plane_radius(cloud, terrain, most=10.0) - expected) < 0.03 * expected
+    assert plane_radius(cloud, terrain, most=0.5) == 0.5
+    assert plane_radius(cloud, np.zeros(2 * n, bool), most=10.0) == 0.0

@@ -424,3 +424,26 @@ def test_spurious_returns_are_labelled_and_off_the_surface(offroad):
     assert not clean.is_outlier.any() and (clean.ground_truth < OUTLIER).all()
     with pytest.raises(InputError, match="outlier_fraction"):
         sample_stereo(offroad, outlier_fraction=2.0)
+
+
+def test_airborne_strip_is_top_down_in_projected_coordinates(offroad):
+    """sample_airborne: about density x area first returns, in projected coordinates (the
+    scene's origin at AIRBORNE_OFFSET); noise-free terrain hits lie on the exact terrain,
+    obstacle hits above it, and the noise is along the (near-vertical) beam."""
+    from o3d_terrain.synthetic import sample_airborne
+    from o3d_terrain.synthetic.sensors import AIRBORNE_OFFSET
+    cloud = sample_airborne(offroad, density=4.0, seed=1)
+    x_min, x_max, y_min, y_max = offroad.region
+    assert abs(len(cloud) - 4.0 * (x_max - x_min) * (y_max - y_min)) < 0.05 * len(cloud)
+    world = cloud.to_world(cloud.true_positions)
+    np.testing.assert_allclose(world, cloud.true_positions - AIRBORNE_OFFSET)
+    assert world[:, 0].min() >= x_min - 1e-6 and world[:, 0].max() <= x_max + 1e-6
+    terrain = ~cloud.is_obstacle
+    gap = world[terrain, 2] - offroad.height(world[terrain, 0], world[terrain, 1])
+    assert np.abs(gap).max() < 1e-4
+    assert cloud.is_obstacle.any() and (cloud.true_height_above_terrain[cloud.is_obstacle]
+                                        > -0.05).all()
+    noise = cloud.positions - cloud.true_positions
+    assert 0.02 < np.std(noise[:, 2]) < 0.04 and np.std(noise[:, 0]) < 1e-9
+    with pytest.raises(InputError, match="scan_angle_deg"):
+        sample_airborne(offroad, scan_angle_deg=70.0)

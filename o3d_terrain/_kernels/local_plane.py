@@ -138,3 +138,52 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
             dirty[cell_of[new[k]]] = True
         accepted += count
     return accepted
+
+
+@numba.njit(cache=True)
+def count_within(positions, x, y, radius, stop):
+    """How many of the points ``positions`` (N, >= 2) lie within ``radius`` (x/y) of (x, y),
+    counting up to ``stop`` (the answer is then ``stop``: no need to read on)."""
+    r2 = radius * radius
+    count = 0
+    for i in range(positions.shape[0]):
+        dx = positions[i, 0] - x
+        dy = positions[i, 1] - y
+        if dx * dx + dy * dy <= r2:
+            count += 1
+            if count >= stop:
+                break
+    return count
+
+
+@numba.njit(cache=True)
+def points_per_square_metre(positions, selected):
+    """The ``selected`` (N,) bool points per occupied 1 m x 1 m cell of their bounding box
+    (0 when none is selected): their density where they lie."""
+    x0 = np.inf
+    y0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    count = 0
+    for i in range(positions.shape[0]):
+        if selected[i] and math.isfinite(positions[i, 0]) and math.isfinite(positions[i, 1]):
+            x0 = min(x0, positions[i, 0])
+            x1 = max(x1, positions[i, 0])
+            y0 = min(y0, positions[i, 1])
+            y1 = max(y1, positions[i, 1])
+            count += 1
+    if count == 0:
+        return 0.0
+    # at most about 4096 x 4096 cells: a wider cloud's cells grow (the density counts per m2)
+    cell = max(1.0, (x1 - x0) / _MAX_CELLS, (y1 - y0) / _MAX_CELLS)
+    nx = int((x1 - x0) / cell) + 1
+    ny = int((y1 - y0) / cell) + 1
+    seen = np.zeros(nx * ny, np.bool_)
+    occupied = 0
+    for i in range(positions.shape[0]):
+        if selected[i] and math.isfinite(positions[i, 0]) and math.isfinite(positions[i, 1]):
+            c = int((positions[i, 0] - x0) / cell) * ny + int((positions[i, 1] - y0) / cell)
+            if not seen[c]:
+                seen[c] = True
+                occupied += 1
+    return count / (occupied * cell * cell)

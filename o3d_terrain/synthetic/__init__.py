@@ -28,6 +28,7 @@ from .sensors import (
     TerrainError,
     cast,
     rotation_matrix,
+    sample_airborne,
     sample_lidar,
     sample_sequence,
     sample_stereo,
@@ -41,7 +42,8 @@ __all__ = [
     "OBSTACLE", "OBSTACLE_SHAPES", "OUTLIER", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN",
     "Camera", "Hill", "Obstacle", "Plane", "Ramp", "Ridge", "Roughness", "Scene", "StereoPair",
     "SyntheticCloud", "TerrainError", "Valley", "cast", "default_obstacles", "make_scene",
-    "render_stereo_pair", "rotation_matrix", "sample_lidar", "sample_sequence", "sample_stereo",
+    "render_stereo_pair", "rotation_matrix", "sample_airborne", "sample_lidar", "sample_sequence",
+    "sample_stereo",
     "section6_scene", "sensor_pose", "terrain_rmse", "texture", "value_noise",
 ]
 

@@ -407,6 +407,46 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
                           scene, "lidar", outliers=outliers)
 
 
+#: where :func:`sample_airborne` puts the scene's origin: projected coordinates (UTM-like
+#: metres), as an airborne tile has them, so no point lies near a sensor at (0, 0, 0)
+AIRBORNE_OFFSET = (500000.0, 6600000.0, 100.0)
+
+
+def sample_airborne(scene: Scene, *, density: float = 6.0, altitude: float = 300.0,
+                    scan_angle_deg: float = 15.0, range_noise: float = 0.03,
+                    offset=AIRBORNE_OFFSET, seed: int = 0) -> SyntheticCloud:
+    """An airborne lidar strip over the scene's region: about ``density`` pulses per square
+    metre at random (x, y), each from ``altitude`` m up along a line of flight parallel to x,
+    tilted across it by up to ``scan_angle_deg``; first returns, with Gaussian range noise of
+    ``range_noise`` m along the beam. The cloud is in projected coordinates: the scene's
+    point (x, y, z) is at (x, y, z) + ``offset`` (``world_from_sensor`` undoes it), so, as
+    for a LAS tile, no point lies near the origin."""
+    _check_positive(density=density, altitude=altitude)
+    _check_non_negative(range_noise=range_noise, scan_angle_deg=scan_angle_deg)
+    _check_finite("offset", offset, length=3)
+    if scan_angle_deg >= 60:
+        raise InputError(f"scan_angle_deg must be below 60 degrees; got {scan_angle_deg}")
+    rng = np.random.default_rng(seed)
+    x_min, x_max, y_min, y_max = scene.region
+    n = int(round(density * (x_max - x_min) * (y_max - y_min)))
+    x = rng.uniform(x_min, x_max, n)
+    y = rng.uniform(y_min, y_max, n)
+    angle = np.radians(rng.uniform(-scan_angle_deg, scan_angle_deg, n))
+    directions = np.stack([np.zeros(n), np.sin(angle), -np.cos(angle)], axis=1)
+    # each pulse leaves the line of flight where its beam meets (x, y) at z = 0
+    origins = np.stack([x, y - altitude * np.tan(angle), np.full(n, float(altitude))], axis=1)
+    t, index, _ = cast(scene, origins, directions)
+    keep = np.isfinite(t)
+    origins, directions, t, index = origins[keep], directions[keep], t[keep], index[keep]
+    measured = t + rng.normal(0.0, range_noise, len(t)) if range_noise > 0 else t
+    shift = np.asarray(offset, dtype=np.float64)
+    pose = np.eye(4)
+    pose[:3, 3] = -shift
+    return SyntheticCloud(origins + directions * measured[:, None] + shift,
+                          origins + directions * t[:, None] + shift, index, pose, scene,
+                          "airborne")
+
+
 def _spurious(measured: np.ndarray, fraction: float, rng: np.random.Generator):
     """Move a random ``fraction`` of the ranges to 0.5-1.5 times their value (spurious returns)."""
     if not (isinstance(fraction, (int, float)) and 0.0 <= fraction <= 1.0):
