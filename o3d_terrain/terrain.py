@@ -34,7 +34,7 @@ from .spline import GridBasis, TerrainSurface
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
+           "default_control_points", "terrain_prior_mask", "TOP_DOWN_MAX_CONTROL_POINTS", "sensor_ground_plane", "METHODS",
            "MAX_SLOPE_DEG", "NOISE_FLOOR"]
 
 METHODS = ("robust", "paper")
@@ -50,6 +50,10 @@ NOISE_FLOOR = 0.03
 
 #: most control points per axis chosen automatically (keeps the banded solve in milliseconds)
 AUTO_MAX_CONTROL_POINTS = 32
+#: ... on a top-down scan (an airborne tile: no points near the sensor), which is not fitted
+#: at a vehicle's frame rate: a layout of one control point every 2 cells then follows terrain
+#: up to about 45 m across (docs/algorithm.md, "Local planes on a top-down scan")
+TOP_DOWN_MAX_CONTROL_POINTS = 48
 
 #: beyond AUTO_MAX_CONTROL_POINTS (extents over ~170 m: airborne tiles), the automatic layout
 #: keeps control points at most this far apart (m), up to AUTO_LIMIT_CONTROL_POINTS per axis
@@ -109,20 +113,22 @@ class TerrainFit:
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,
-                           spacing: float | None = None) -> tuple[int, int]:
+                           spacing: float | None = None,
+                           most: int = AUTO_MAX_CONTROL_POINTS) -> tuple[int, int]:
     """A control-point layout from the grid's extent: about one control point every
-    ``spacing`` metres (default: 2 cells, at least 1 m), at most
-    :data:`AUTO_MAX_CONTROL_POINTS` per axis unless that leaves them more than
-    :data:`AUTO_MAX_SPACING` apart (then one every AUTO_MAX_SPACING metres, at most
-    :data:`AUTO_LIMIT_CONTROL_POINTS`), and at least ``degree + 1``."""
+    ``spacing`` metres (default: 2 cells, at least 1 m), at most ``most`` per axis
+    (default :data:`AUTO_MAX_CONTROL_POINTS`; :data:`TOP_DOWN_MAX_CONTROL_POINTS` for a
+    top-down scan) unless that leaves them more than :data:`AUTO_MAX_SPACING` apart (then one
+    every AUTO_MAX_SPACING metres, at most :data:`AUTO_LIMIT_CONTROL_POINTS`), and at least
+    ``degree + 1``."""
     if spacing is None:
         spacing = max(2.0 * grid.cell_size, 1.0)
     x_min, x_max, y_min, y_max = grid.region
     out = []
     for extent, cells in ((x_max - x_min, grid.nx), (y_max - y_min, grid.ny)):
         n = int(round(extent / spacing)) + degree
-        most = max(AUTO_MAX_CONTROL_POINTS, int(math.ceil(extent / AUTO_MAX_SPACING)) + degree)
-        n = min(n, most, AUTO_LIMIT_CONTROL_POINTS, cells + degree - 1)
+        most_here = max(int(most), int(math.ceil(extent / AUTO_MAX_SPACING)) + degree)
+        n = min(n, most_here, AUTO_LIMIT_CONTROL_POINTS, cells + degree - 1)
         out.append(max(n, degree + 1))
     return out[0], out[1]
 

@@ -11,8 +11,9 @@ from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import refine_surface
-from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points
-from ..terrain import MAX_SLOPE_DEG, METHODS, NOISE_FLOOR, TerrainFit, fit_grid_detailed
+from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points, sensor_in_cloud
+from ..terrain import (MAX_SLOPE_DEG, METHODS, NOISE_FLOOR, TOP_DOWN_MAX_CONTROL_POINTS,
+                       TerrainFit, default_control_points, fit_grid_detailed)
 from .base import Stage, stage
 
 
@@ -42,8 +43,9 @@ class RationalBSplineTerrain(Stage):
         None, kind=int, length=2, broadcast=True, nullable=True, rule=Range(2, 1000),
         check=_check_control_points,
         help="control points per axis at the end of the growth; null = about one every "
-             "2 cells (at least 1 m), at most 32 per axis, or one every 6 m (at most 96) "
-             "where 32 would be farther apart",
+             "2 cells (at least 1 m), at most 32 per axis (48 on a top-down scan: an airborne "
+             "tile with no points near sensor_origin), or one every 6 m (at most 96) where "
+             "that would leave them farther apart",
     )
     degree: int = option(3, rule=Range(1, 5), help="polynomial degree of the B-spline basis")
     method: str = option("robust", choices=METHODS,
@@ -126,8 +128,14 @@ class RationalBSplineTerrain(Stage):
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
+        control_points = self.control_points
+        if control_points is None and positions is not None and self.method == "robust" \
+                and not sensor_in_cloud(positions, self.sensor_origin):
+            # a top-down scan (an airborne tile) is not fitted at a vehicle's frame rate
+            control_points = default_control_points(grid, self.degree,
+                                                    most=TOP_DOWN_MAX_CONTROL_POINTS)
         fit = fit_grid_detailed(
-            grid, control_points=self.control_points, degree=self.degree,
+            grid, control_points=control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
             rational=self.rational, terrain_prior=self.terrain_prior,
             max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
