@@ -16,6 +16,8 @@
    (or the lidar sensors of ``--sensors``), columns as in 1.
 5. ``--only airborne``: airborne strips over the synthetic scenes (:func:`run_airborne`),
    ``segment_terrain``'s labels with all defaults; ``--peers`` adds CSF and SMRF.
+6. ``--only wide``: 360-degree lidar frames 120 m wide over the synthetic scenes
+   (:func:`run_wide`), the default layout against 64 x 64 control points.
 ``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
 sensors, for the synthetic and the steep scenes; ``--sensors high_mount,high_pitched,lidar128,
 low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurious``: a
@@ -23,7 +25,7 @@ low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurio
 
 Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
 
-Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep,airborne]
+Run: .venv/bin/python benchmarks/bench_accuracy.py [--only synthetic,kitti,las,steep,airborne,wide]
      [--peers]
      [--method robust|paper] [--scenes flat,hills,...] [--sensors lidar,stereo,tilt,lidar16]
      [--no-terrain-prior] [--no-range-noise] [--no-object-feet] [--no-cell-plane] [--no-refine]
@@ -241,6 +243,45 @@ def run_airborne(method: str, scenes, peers: bool) -> None:
         print(row, flush=True)
 
 
+def run_wide(method: str, scenes) -> None:
+    """360-degree frames 120 m wide (the scenes over (-60, 60) m on both axes, a 32-channel
+    lidar 1.8 m up, 1,800 firings per turn; the default obstacles 20 m farther out): the
+    labels of ``segment_terrain`` with all defaults (32 x 32 control points, 3.9 m apart)
+    and with 64 x 64 (1.9 m), against the truth, and the time of each fit."""
+    from o3d_terrain.synthetic import Obstacle, default_obstacles, make_scene, sample_lidar
+
+    obstacles = tuple(Obstacle(o.kind, (o.center[0] + 20.0, o.center[1]), o.size, o.height,
+                               o.yaw_deg) for o in default_obstacles(0))
+    layouts = (None, (64, 64))
+    print("| scene | points |" + "".join(
+        f" {'default' if n is None else f'{n[0]} x {n[1]}'}: RMSE (m) / ground F1 / obstacle "
+        "recall / s |" for n in layouts))
+    print("|---|---|" + "---|" * len(layouts))
+    for name in scenes:
+        scene = make_scene(name, seed=0, obstacles=False,
+                           region=(-60.0, 60.0, -60.0, 60.0)).with_obstacles(obstacles)
+        cloud = sample_lidar(scene, beams=32, azimuth_steps=1800, seed=0)
+        positions = np.asarray(cloud.positions, dtype=np.float64)
+        terrain = ~cloud.is_obstacle
+        true_z = cloud.terrain_height(positions[:, 0], positions[:, 1])
+        tall = cloud.is_obstacle & (positions[:, 2] - true_z > OBSTACLE_HEIGHT)
+        row = f"| {name} | {len(cloud):,} |"
+        for layout in layouts:
+            if layout is not None:
+                FIT_OPTIONS["control_points"] = layout
+            start = time.perf_counter()
+            surface, inliers = segment_terrain(positions, method)
+            seconds = time.perf_counter() - start
+            FIT_OPTIONS.pop("control_points", None)
+            ours = np.zeros(len(positions), bool)
+            ours[inliers] = True
+            error = surface(positions[terrain, 0], positions[terrain, 1]) - true_z[terrain]
+            rmse = float(np.sqrt(np.mean(error[np.isfinite(error)] ** 2)))
+            row += (f" {rmse:.3f} / {f1_score(ours, terrain)[2]:.4f} / "
+                    f"{float(np.mean(~ours[tall])):.3f} / {seconds:.2f} |")
+        print(row, flush=True)
+
+
 def run_kitti(root: Path, method: str) -> None:
     from o3d_terrain.evaluation.datasets import semantic_kitti_frames
 
@@ -345,6 +386,8 @@ def main() -> None:
     if "steep" in parts:  # held-out steep scenes: lidar sensors only
         run_synthetic(args.method, steep_scenes(),
                       [s for s in sensors if s != "stereo"] or ["lidar", "tilt"])
+    if "wide" in parts:
+        run_wide(args.method, args.scenes.split(","))
     if "airborne" in parts:
         run_airborne(args.method, args.scenes.split(","), args.peers)
     if "kitti" in parts:

@@ -347,8 +347,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
             and not sensor_in_cloud(p, sensor_origin):
         # a top-down scan: every point up to MISFIT_HIGH above the surface and above its
         # threshold measured against the local plane of the terrain around it, within the
-        # radius that holds PLANE_POINTS terrain points (docs/algorithm.md, "Local planes on
-        # a top-down scan")
+        # radius that holds PLANE_POINTS terrain points (docs/algorithm.md, "Local planes and
+        # a finer layout on a top-down scan")
         _top_down_planes(labels, h, p, threshold, block_size(surface))
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,

@@ -52,7 +52,8 @@ NOISE_FLOOR = 0.03
 AUTO_MAX_CONTROL_POINTS = 32
 #: ... on a top-down scan (an airborne tile: no points near the sensor), which is not fitted
 #: at a vehicle's frame rate: a layout of one control point every 2 cells then follows terrain
-#: up to about 45 m across (docs/algorithm.md, "Local planes on a top-down scan")
+#: up to about 45 m across (docs/algorithm.md, "Local planes and a finer layout on a top-down
+#: scan")
 TOP_DOWN_MAX_CONTROL_POINTS = 48
 
 #: beyond AUTO_MAX_CONTROL_POINTS (extents over ~170 m: airborne tiles), the automatic layout
