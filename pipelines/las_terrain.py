@@ -13,7 +13,7 @@ def run(output_dir, input_path=None):
     frame = GridQuantize(cell_size=1.0)(read_cloud(input_path))
     frame = RationalBSplineTerrain()(frame)
     frame = SlopeEstimator(cell_size=1.0)(frame)
-    frame = Segmenter(threshold=0.3)(frame)
+    frame = Segmenter()(frame)  # automatic threshold and local planes
     out = Path(output_dir)
     for writer in (
         WriteCloud(path="labelled.ply", color_by="labels"),
