@@ -270,3 +270,15 @@ def test_plane_radius_holds_the_planes_points_at_the_scans_density(rng):
     assert abs(plane_radius(cloud, terrain, most=10.0) - expected) < 0.03 * expected
     assert plane_radius(cloud, terrain, most=0.5) == 0.5
     assert plane_radius(cloud, np.zeros(2 * n, bool), most=10.0) == 0.0
+
+
+def test_top_down_labels_drop_bad_points_and_keep_the_rest():
+    """An airborne strip with 5 % NaN rows and a few infinite coordinates: the bad points are
+    never inliers, and the others get the labels they get without the bad rows."""
+    cloud = _airborne_mounds()
+    p = cloud.positions.copy()
+    clean = segment_terrain(p)[1]
+    noisy = np.vstack([p, np.full((len(p) // 20, 3), np.nan), [[np.inf, 0.0, 0.0]] * 3])
+    inliers = segment_terrain(noisy)[1]
+    assert inliers.max() < len(p)
+    np.testing.assert_array_equal(inliers, clean)
