@@ -28,8 +28,14 @@ from ._kernels import bspline as _bs
 from ._kernels import foot as _foot
 from ._kernels import local_plane as _lp
 from .errors import InputError
-from .misfit import (MISFIT_HIGH, block_size, local_plane_terrain, misfit_reach, plane_radius,
-                     widened_thresholds)
+from .misfit import (
+    MISFIT_HIGH,
+    block_size,
+    local_plane_terrain,
+    misfit_reach,
+    plane_radius,
+    widened_thresholds,
+)
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
@@ -312,14 +318,15 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     automatic_range = range_coefficient is None
     range_coefficient = 0.0 if automatic_range else range_coefficient
     range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
-    automatic = threshold is None
+    use_misfit = threshold is None and misfit and isinstance(surface, TerrainSurface)
+    block = block_size(surface) if use_misfit else 0.0
     if threshold is None:
         threshold = auto_threshold(h)
         if automatic_range:
             range_coefficient = auto_range_coefficient(p, h, threshold, sensor_origin)
             range_high = AUTO_RANGE_HIGH
-        if misfit and isinstance(surface, TerrainSurface):
-            local = widened_thresholds(p, h, threshold, block=block_size(surface),
+        if use_misfit:
+            local = widened_thresholds(p, h, threshold, block=block,
                                        grade=_grade_from_sensor_ground(surface, p, h, threshold,
                                                                        sensor_origin))
     labels = label_heights(h, p, threshold=threshold, below_threshold=below_threshold,
@@ -338,18 +345,14 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         # the terrain around them (docs/algorithm.md, "Local planes in widened blocks")
         candidates = np.flatnonzero((local > threshold) & (labels == TerrainLabel.OBSTACLE)
                                     & (h > 0))
-        terrain = labels == TerrainLabel.TERRAIN
-        if candidates.size and local_plane_terrain(
-                p, h, terrain, candidates,
-                radius=misfit_reach(block_size(surface)), threshold=threshold):
-            labels[candidates[terrain[candidates]]] = TerrainLabel.TERRAIN
-    if misfit and automatic and isinstance(surface, TerrainSurface) \
-            and not sensor_in_cloud(p, sensor_origin):
+        _take_local_planes(labels, h, p, candidates, labels == TerrainLabel.TERRAIN,
+                           misfit_reach(block), threshold)
+    if use_misfit and not sensor_in_cloud(p, sensor_origin):
         # a top-down scan: every point up to MISFIT_HIGH above the surface and above its
         # threshold measured against the local plane of the terrain around it, within the
         # radius that holds PLANE_POINTS terrain points (docs/algorithm.md, "Local planes and
         # a finer layout on a top-down scan")
-        _top_down_planes(labels, h, p, threshold, block_size(surface))
+        _top_down_planes(labels, h, p, threshold, block)
     if foot_height > 0:
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold)
@@ -367,8 +370,19 @@ def _top_down_planes(labels: np.ndarray, h: np.ndarray, p: np.ndarray, threshold
     if candidates.size == 0:
         return 0
     terrain = labels == TerrainLabel.TERRAIN
-    radius = plane_radius(p, terrain, most=block)
-    if not local_plane_terrain(p, h, terrain, candidates, radius=radius, threshold=threshold):
+    return _take_local_planes(labels, h, p, candidates, terrain,
+                              plane_radius(p, terrain, most=block), threshold)
+
+
+def _take_local_planes(labels: np.ndarray, h: np.ndarray, p: np.ndarray,
+                       candidates: np.ndarray, terrain: np.ndarray, radius: float,
+                       threshold: float) -> int:
+    """In place: the ``candidates`` (indices of OBSTACLE points) that lie at most
+    ``threshold`` above the local plane of the ``terrain`` points (labels == TERRAIN, a
+    scratch copy it extends) within ``radius`` become TERRAIN
+    (:func:`o3d_terrain.misfit.local_plane_terrain`). Returns how many changed."""
+    if candidates.size == 0 or not local_plane_terrain(p, h, terrain, candidates,
+                                                        radius=radius, threshold=threshold):
         return 0
     taken = candidates[terrain[candidates]]
     labels[taken] = TerrainLabel.TERRAIN

@@ -34,8 +34,8 @@ from .spline import GridBasis, TerrainSurface
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
-           "default_control_points", "terrain_prior_mask", "TOP_DOWN_MAX_CONTROL_POINTS", "sensor_ground_plane", "METHODS",
-           "MAX_SLOPE_DEG", "NOISE_FLOOR"]
+           "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
+           "MAX_SLOPE_DEG", "NOISE_FLOOR", "TOP_DOWN_MAX_CONTROL_POINTS"]
 
 METHODS = ("robust", "paper")
 

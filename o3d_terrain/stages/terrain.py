@@ -12,8 +12,15 @@ from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import refine_surface
 from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points, sensor_in_cloud
-from ..terrain import (MAX_SLOPE_DEG, METHODS, NOISE_FLOOR, TOP_DOWN_MAX_CONTROL_POINTS,
-                       TerrainFit, default_control_points, fit_grid_detailed)
+from ..terrain import (
+    MAX_SLOPE_DEG,
+    METHODS,
+    NOISE_FLOOR,
+    TOP_DOWN_MAX_CONTROL_POINTS,
+    TerrainFit,
+    default_control_points,
+    fit_grid_detailed,
+)
 from .base import Stage, stage
 
 
