@@ -67,19 +67,20 @@ STEREO_RIG = SYNTHETIC_STEREO_RIG
 USE_RANGE_NOISE = True
 
 
-def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None):
+def fit_terrain(positions: np.ndarray, method: str = "robust", range_noise=None, **options):
     """What ``o3d_terrain.fit_terrain`` does with its defaults (0.5 m cells, the cloud's
-    extent), with FIT_OPTIONS passed to the fit."""
+    extent), with FIT_OPTIONS and ``options`` (the stage's) passed to the fit."""
     finite = positions[np.isfinite(positions).all(axis=1)]
-    stage = RationalBSplineTerrain(method=method, **FIT_OPTIONS)
+    stage = RationalBSplineTerrain(method=method, **{**FIT_OPTIONS, **options})
     grid = quantize_points(finite, cell_size=0.5, region=region_of(finite),
                            plane=stage.cell_plane, tilt_spread=stage.noise_floor)
     return stage.fit(grid, finite, range_noise).surface
 
 
-def segment_terrain(positions: np.ndarray, method: str = "robust"):
-    """What ``o3d_terrain.segment_terrain`` does with its defaults (automatic threshold)."""
-    surface = fit_terrain(positions, method)
+def segment_terrain(positions: np.ndarray, method: str = "robust", **options):
+    """What ``o3d_terrain.segment_terrain`` does with its defaults (automatic threshold);
+    ``options`` go to the fit (:func:`fit_terrain`)."""
+    surface = fit_terrain(positions, method, **options)
     labels, _ = segment_points(surface, positions, threshold=None, **LABEL_OPTIONS)
     return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN)
 
@@ -204,6 +205,25 @@ def run_synthetic(method: str, scenes, sensors) -> None:
                   flush=True)
 
 
+def _default_labels(cloud, method: str, **options) -> dict:
+    """``segment_terrain``'s labels with all defaults (``options`` to the fit) on a synthetic
+    cloud, against its truth: the cloud's positions, the ground mask, the surface's RMSE at
+    the terrain points, the terrain mask, the obstacle points more than OBSTACLE_HEIGHT up,
+    and the seconds the call took."""
+    positions = np.asarray(cloud.positions, dtype=np.float64)
+    start = time.perf_counter()
+    surface, inliers = segment_terrain(positions, method, **options)
+    seconds = time.perf_counter() - start
+    ground = np.zeros(len(positions), bool)
+    ground[inliers] = True
+    terrain = ~cloud.is_obstacle
+    true_z = cloud.terrain_height(positions[:, 0], positions[:, 1])
+    error = surface(positions[terrain, 0], positions[terrain, 1]) - true_z[terrain]
+    return {"positions": positions, "ground": ground, "terrain": terrain, "seconds": seconds,
+            "rmse": float(np.sqrt(np.mean(error[np.isfinite(error)] ** 2))),
+            "tall": cloud.is_obstacle & (positions[:, 2] - true_z > OBSTACLE_HEIGHT)}
+
+
 def run_airborne(method: str, scenes, peers: bool) -> None:
     """Airborne strips over the synthetic scenes (``sample_airborne``: 6 pulses/m2 from 300 m,
     +-15 degree scan, 3 cm noise, projected coordinates), every scene with the default
@@ -228,18 +248,11 @@ def run_airborne(method: str, scenes, peers: bool) -> None:
         scene = make_scene(name, seed=0, obstacles=False).with_obstacles(
             default_obstacles(0) + extra)
         cloud = sample_airborne(scene, seed=0)
-        positions = np.asarray(cloud.positions, dtype=np.float64)
-        surface, inliers = segment_terrain(positions, method)
-        ours = np.zeros(len(positions), bool)
-        ours[inliers] = True
-        terrain = ~cloud.is_obstacle
-        true_z = cloud.terrain_height(positions[:, 0], positions[:, 1])
-        error = surface(positions[terrain, 0], positions[terrain, 1]) - true_z[terrain]
-        rmse = float(np.sqrt(np.mean(error[np.isfinite(error)] ** 2)))
-        tall = cloud.is_obstacle & (positions[:, 2] - true_z > OBSTACLE_HEIGHT)
-        row = f"| {name} | {len(cloud):,} | {rmse:.3f} |"
-        for ground in [ours] + [a.segment(positions) for a in adapters]:
-            row += f" {f1_score(ground, terrain)[2]:.4f} | {float(np.mean(~ground[tall])):.3f} |"
+        r = _default_labels(cloud, method)
+        row = f"| {name} | {len(cloud):,} | {r['rmse']:.3f} |"
+        for ground in [r["ground"]] + [a.segment(r["positions"]) for a in adapters]:
+            row += (f" {f1_score(ground, r['terrain'])[2]:.4f} | "
+                    f"{float(np.mean(~ground[r['tall']])):.3f} |")
         print(row, flush=True)
 
 
@@ -261,24 +274,11 @@ def run_wide(method: str, scenes) -> None:
         scene = make_scene(name, seed=0, obstacles=False,
                            region=(-60.0, 60.0, -60.0, 60.0)).with_obstacles(obstacles)
         cloud = sample_lidar(scene, beams=32, azimuth_steps=1800, seed=0)
-        positions = np.asarray(cloud.positions, dtype=np.float64)
-        terrain = ~cloud.is_obstacle
-        true_z = cloud.terrain_height(positions[:, 0], positions[:, 1])
-        tall = cloud.is_obstacle & (positions[:, 2] - true_z > OBSTACLE_HEIGHT)
         row = f"| {name} | {len(cloud):,} |"
         for layout in layouts:
-            if layout is not None:
-                FIT_OPTIONS["control_points"] = layout
-            start = time.perf_counter()
-            surface, inliers = segment_terrain(positions, method)
-            seconds = time.perf_counter() - start
-            FIT_OPTIONS.pop("control_points", None)
-            ours = np.zeros(len(positions), bool)
-            ours[inliers] = True
-            error = surface(positions[terrain, 0], positions[terrain, 1]) - true_z[terrain]
-            rmse = float(np.sqrt(np.mean(error[np.isfinite(error)] ** 2)))
-            row += (f" {rmse:.3f} / {f1_score(ours, terrain)[2]:.4f} / "
-                    f"{float(np.mean(~ours[tall])):.3f} / {seconds:.2f} |")
+            r = _default_labels(cloud, method, control_points=layout)
+            row += (f" {r['rmse']:.3f} / {f1_score(r['ground'], r['terrain'])[2]:.4f} / "
+                    f"{float(np.mean(~r['ground'][r['tall']])):.3f} / {r['seconds']:.2f} |")
         print(row, flush=True)
 
 
