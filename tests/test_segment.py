@@ -151,21 +151,29 @@ def test_cubic_span_gradient_equals_the_b_spline_derivatives():
     s = make_lsq_surface(x, y, z, control_points=(12, 8),
                          rational_weights=rng.uniform(0.5, 1.5, (12, 8)))
     n0, n1 = s.control_points.shape
-    inv_wx = _bs._inverse_span_width(n0, 3, s.knots_x)
-    inv_wy = _bs._inverse_span_width(n1, 3, s.knots_y)
-    coef = _bs.cubic_span_coefficients(s.knots_x, s.knots_y, s.control_points, s.weights,
-                                       inv_wx, inv_wy)
+    coef = _bs.cubic_span_coefficients(s.knots_x, s.knots_y, s.control_points, s.weights)
+    lx = _bs.span_lookup(s.knots_x, n0, 3)
+    ly = _bs.span_lookup(s.knots_y, n1, 3)
     px = rng.uniform(s.knots_x[0], s.knots_x[-1], 500)
     py = rng.uniform(s.knots_y[0], s.knots_y[-1], 500)
     gx, gy = s.gradient(px + s.origin[0], py + s.origin[1])
+    bx = np.empty(4)
+    by = np.empty(4)
+    dbx = np.empty(4)
+    dby = np.empty(4)
+    left = np.empty(4)
+    right = np.empty(4)
     for k in range(500):
-        fx = (px[k] - s.knots_x[3]) * inv_wx
-        fy = (py[k] - s.knots_y[3]) * inv_wy
-        ix = min(max(int(fx), 0), n0 - 4)
-        iy = min(max(int(fy), 0), n1 - 4)
-        su, sv = _bs._cubic_span_gradient(coef, (ix * (n1 - 3) + iy) * 32, fx - ix, fy - iy)
-        assert su * inv_wx == pytest.approx(gx[k], rel=1e-10, abs=1e-12)
-        assert sv * inv_wy == pytest.approx(gy[k], rel=1e-10, abs=1e-12)
+        b, u, v, wx, wy = _bs._cubic_span_at(px[k], py[k], s.knots_x, s.knots_y, n0, n1, lx, ly)
+        su, sv = _bs._cubic_span_gradient(coef, b, u, v)
+        # the B-spline sums' derivatives (A2.2 and the derivative formula)
+        _, ex, ey = _bs._point_first_derivatives(
+            px[k], py[k], s.knots_x, s.knots_y, 3, s.control_points, s.weights, lx[0], lx[1],
+            ly[0], ly[1], bx, by, dbx, dby, left, right)
+        assert su * wx == pytest.approx(ex, rel=1e-10, abs=1e-12)
+        assert sv * wy == pytest.approx(ey, rel=1e-10, abs=1e-12)
+        assert gx[k] == pytest.approx(ex, rel=1e-10, abs=1e-12)
+        assert gy[k] == pytest.approx(ey, rel=1e-10, abs=1e-12)
 
 
 def test_tensor_cloud_numpy_and_auto_threshold_agree():

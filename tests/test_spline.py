@@ -280,19 +280,21 @@ def test_save_load_round_trip(tmp_path):
     assert TerrainSurface.load(tmp_path / "u.npz").cell_size == 0.25
 
 
+@pytest.mark.parametrize("uneven", [False, True])
 @pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
-def test_span_power_basis_equals_scipy_basis_functions(degree):
+def test_span_power_basis_equals_scipy_basis_functions(degree, uneven):
     """The power form of each span's basis functions (clamped end spans included) gives the
     B-spline basis at points of the span and at its two knots."""
     n_ctrl = degree + 6
     knots = clamped_uniform_knots(n_ctrl, degree, -2.0, 9.0)
-    inv_width = (n_ctrl - degree) / (knots[n_ctrl] - knots[degree])
-    power = kb.span_power_basis(knots, degree, n_ctrl, inv_width)
+    if uneven:
+        knots[degree + 1:n_ctrl] += np.linspace(-0.4, 0.7, n_ctrl - degree - 1)
+    power = kb.span_power_basis(knots, degree, n_ctrl)
     rng = np.random.default_rng(degree)
     for s in range(n_ctrl - degree):
         span = degree + s
         t = np.r_[knots[span], rng.uniform(knots[span], knots[span + 1], 20), knots[span + 1]]
-        u = (t - knots[span]) * inv_width
+        u = (t - knots[span]) / (knots[span + 1] - knots[span])
         for r in range(degree + 1):
             coefficients = np.zeros(n_ctrl)
             coefficients[span - degree + r] = 1.0
@@ -360,3 +362,43 @@ def test_invalid_surfaces_are_rejected_with_reasons():
     with pytest.raises(InputError, match="degenerate"):
         make_lsq_surface([0, 1, 2], [0, 1, 2], np.zeros((3, 3)), control_points=(4, 4),
                          region=(0, 0, 0, 2))
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_surface_on_uneven_knots_equals_the_b_spline_sums(degree):
+    """A surface on clamped knots that are not evenly spaced (and with a repeated interior
+    knot) evaluates as the rational B-spline sums: values, heights (parallel and serial) and
+    gradients."""
+    rng = np.random.default_rng(degree)
+    kx = np.r_[[0.0] * (degree + 1), 0.6, 1.5, 4.0, 7.0, 7.0, 8.5, [10.0] * (degree + 1)]
+    ky = np.r_[[-3.0] * (degree + 1), -1.0, 0.2, 0.5, 3.6, [6.0] * (degree + 1)]
+    n0, n1 = kx.size - degree - 1, ky.size - degree - 1
+    q = rng.normal(size=(n0, n1))
+    r = rng.uniform(0.5, 2.0, (n0, n1))
+    origin = (500_000.0, 4_000_000.0, 120.0)
+    s = TerrainSurface(degree, kx, ky, q, r, origin)
+    x = np.r_[rng.uniform(0, 10, 3000), kx[degree + 1:-degree - 1], 0.0, 10.0]
+    y = np.r_[rng.uniform(-3, 6, 3000), np.resize(ky[degree + 1:-degree - 1], 6), -3.0, 6.0]
+
+    def rational(xx, yy):
+        bx = BSpline.design_matrix(np.clip(xx, 0, 10), kx, degree).toarray()
+        by = BSpline.design_matrix(np.clip(yy, -3, 6), ky, degree).toarray()
+        return np.einsum("ia,ab,ib->i", bx, r * q, by) / np.einsum("ia,ab,ib->i", bx, r, by)
+
+    expected = rational(x, y) + origin[2]
+    np.testing.assert_allclose(s(x + origin[0], y + origin[1]), expected, atol=1e-11)
+    points = np.c_[x + origin[0], y + origin[1], np.full(x.size, 125.0)]
+    np.testing.assert_allclose(s.heights_above(points), 125.0 - expected, atol=1e-11)
+    serial = kb.heights_above_serial(points, *origin, s.knots_x, s.knots_y, degree,
+                                     s.control_points, s.weights, 1e-9, 1e-9)
+    np.testing.assert_allclose(serial, 125.0 - expected, atol=1e-11)
+    # away from the ends and from the double knot at x = 7 (where degree 2 has a kink)
+    inside = (x > 1e-3) & (x < 10 - 1e-3) & (y > -3 + 1e-3) & (y < 6 - 1e-3) & \
+        (np.abs(x - 7.0) > 1e-3)
+    h = 1e-6
+    gx, gy = s.gradient(x[inside] + origin[0], y[inside] + origin[1])
+    xi, yi = x[inside], y[inside]
+    np.testing.assert_allclose(gx, (rational(xi + h, yi) - rational(xi - h, yi)) / (2 * h),
+                               atol=2e-5)
+    np.testing.assert_allclose(gy, (rational(xi, yi + h) - rational(xi, yi - h)) / (2 * h),
+                               atol=2e-5)

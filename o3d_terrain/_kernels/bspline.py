@@ -73,7 +73,7 @@ def find_span(n_ctrl, degree, t, knots):
         return n
     if t <= knots[degree]:
         return degree
-    # uniform interior knots: guess the span directly, then correct by comparisons
+    # guess the span as on uniform interior knots, then correct by comparisons
     guess = _uniform_span(n_ctrl, degree, t, knots, _inverse_span_width(n_ctrl, degree, knots))
     if knots[guess] <= t < knots[guess + 1]:
         return guess
@@ -228,7 +228,7 @@ def basis_funs_first_derivative(span, t, degree, knots, values, derivatives, lef
 
 
 # -------------------------------------------------------------------------------------------
-# fused per-point kernels: span on uniform knots in O(1), basis, rational sum, one pass
+# fused per-point kernels: span in O(1), basis, rational sum, one pass
 
 
 @numba.njit(cache=True, inline="always")
@@ -292,130 +292,83 @@ def quotient_rule(a, d, ax, dx, ay, dy):
     return s, (ax - s * dx) / d, (ay - s * dy) / d
 
 
+@numba.njit(cache=True)
+def span_lookup(knots, n_ctrl, degree):
+    """What O(1) span finding needs on any clamped knot vector: ``(table, scale,
+    inv_widths)``. [knots[degree], knots[n_ctrl]] is cut into buckets no wider than its
+    narrowest non-empty span (at most 64 per span); ``table[b]`` is the span holding the
+    start of bucket b, so a parameter's span is its bucket's entry or the next
+    (:func:`lookup_span`). ``inv_widths[s]``: 1 / width of span degree + s, 0 for an empty
+    span (a repeated interior knot). On uniform knots: one bucket per span."""
+    p = degree
+    n_spans = n_ctrl - p
+    low = knots[p]
+    high = knots[n_ctrl]
+    inv_widths = np.zeros(n_spans)
+    narrowest = high - low
+    for s in range(n_spans):
+        w = knots[p + s + 1] - knots[p + s]
+        if w > 0.0:
+            inv_widths[s] = 1.0 / w
+            narrowest = min(narrowest, w)
+    if not high > low:
+        return np.full(1, p, np.int64), 0.0, inv_widths
+    n_buckets = max(1, min(int(math.ceil((high - low) / narrowest - 1e-9)), 64 * n_spans))
+    scale = n_buckets / (high - low)
+    table = np.empty(n_buckets + 1, np.int64)
+    s = p
+    for b in range(n_buckets + 1):
+        t = low + b / scale
+        while s < n_ctrl - 1 and t >= knots[s + 1]:
+            s += 1
+        table[b] = s
+    return table, scale, inv_widths
+
+
 @numba.njit(cache=True, inline="always")
-def _point_value(px, py, kx, ky, p, control, weights, inv_wx, inv_wy, bx, by, left, right):
-    """S(px, py) - in local coordinates, inside the knot range - as A / D (no derivatives)."""
+def lookup_span(t, knots, n_ctrl, degree, table, scale):
+    """Knot span of t (:func:`find_span`: parameters before or beyond the knot range map to
+    the end spans) from the bucket table of :func:`span_lookup`: one multiplication, then
+    comparisons with the knots on either side (the bucket's entry is the span or the one
+    before it)."""
+    f = (t - knots[degree]) * scale
+    last = table.shape[0] - 1
+    b = 0
+    if f >= last:
+        b = last
+    elif f > 0.0:
+        b = int(f)
+    s = table[b]
+    while s > degree and t < knots[s]:
+        s -= 1
+    while s < n_ctrl - 1 and t >= knots[s + 1]:
+        s += 1
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def _point_value(px, py, kx, ky, p, control, weights, tab_x, sc_x, tab_y, sc_y, bx, by, left,
+                 right):
+    """S(px, py) - in local coordinates, inside the knot range - as A / D (no derivatives),
+    by A2.2 (any degree and knots)."""
     n0 = control.shape[0]
     n1 = control.shape[1]
-    sx = _uniform_span(n0, p, px, kx, inv_wx)
-    sy = _uniform_span(n1, p, py, ky, inv_wy)
-    _basis_values(sx, px, p, kx, n0, inv_wx, bx, left, right)
-    _basis_values(sy, py, p, ky, n1, inv_wy, by, left, right)
+    sx = lookup_span(px, kx, n0, p, tab_x, sc_x)
+    sy = lookup_span(py, ky, n1, p, tab_y, sc_y)
+    basis_funs_scratch(sx, px, p, kx, bx, left, right)
+    basis_funs_scratch(sy, py, p, ky, by, left, right)
     a, d = _rational_sums(sx, sy, p, control, weights, bx, by)
     return a / d
 
 
-@numba.njit(cache=True, inline="always")
-def _basis_values(span, t, degree, knots, n_ctrl, inv_width, out, left, right):
-    """Non-zero basis functions at t. Cubic spans whose six knots are all uniform interior
-    knots use the closed form of the uniform cubic B-spline in u = (t - knots[span]) / h
-    (1/6 (1 - u)^3, 1/6 (3u^3 - 6u^2 + 4), 1/6 (-3u^3 + 3u^2 + 3u + 1), 1/6 u^3), which
-    equals A2.2 up to rounding without its divisions; other spans use A2.2."""
-    if degree == 3 and span >= 5 and span <= n_ctrl - 3:
-        u = (t - knots[span]) * inv_width
-        v = 1.0 - u
-        u2 = u * u
-        u3 = u2 * u
-        out[0] = v * v * v / 6.0
-        out[1] = (3.0 * u3 - 6.0 * u2 + 4.0) / 6.0
-        out[2] = (-3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0) / 6.0
-        out[3] = u3 / 6.0
-    else:
-        basis_funs_scratch(span, t, degree, knots, out, left, right)
-
-
-@numba.njit(cache=True, inline="always")
-def _cubic_basis_scaled(span, t, knots, n_ctrl, inv_width):
-    """The 4 non-zero cubic basis functions at t as scalars, all times one common factor:
-    on interior uniform spans 6 times the closed form of :func:`_basis_values` (its divisions
-    by 6 left out), elsewhere A2.2 unrolled (the same operations, factor 1). Only for ratios
-    in which the factor cancels (the rational surface A / D)."""
-    if span >= 5 and span <= n_ctrl - 3:
-        u = (t - knots[span]) * inv_width
-        v = 1.0 - u
-        u2 = u * u
-        u3 = u2 * u
-        return (v * v * v, 3.0 * u3 - 6.0 * u2 + 4.0, -3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0, u3)
-    left1 = t - knots[span]
-    right1 = knots[span + 1] - t
-    temp = 1.0 / (right1 + left1)
-    o0 = 0.0 + right1 * temp
-    o1 = left1 * temp
-    left2 = t - knots[span - 1]
-    right2 = knots[span + 2] - t
-    temp = o0 / (right1 + left2)
-    o0 = 0.0 + right1 * temp
-    saved = left2 * temp
-    temp = o1 / (right2 + left1)
-    o1 = saved + right2 * temp
-    o2 = left1 * temp
-    left3 = t - knots[span - 2]
-    right3 = knots[span + 3] - t
-    temp = o0 / (right1 + left3)
-    o0 = 0.0 + right1 * temp
-    saved = left3 * temp
-    temp = o1 / (right2 + left2)
-    o1 = saved + right2 * temp
-    saved = left2 * temp
-    temp = o2 / (right3 + left1)
-    o2 = saved + right3 * temp
-    o3 = left1 * temp
-    return o0, o1, o2, o3
-
-
-@numba.njit(cache=True, inline="always")
-def _cubic_row(control, weights, ia, sy, y0, y1, y2, y3):
-    """Row ``ia`` of :func:`_rational_sums` for degree 3 (the same operations): the sums over
-    the 4 control points of span ``sy`` of R Q N_b and R N_b."""
-    r = weights[ia, sy - 3] * y0
-    ra = 0.0 + r * control[ia, sy - 3]
-    rd = 0.0 + r
-    r = weights[ia, sy - 2] * y1
-    ra += r * control[ia, sy - 2]
-    rd += r
-    r = weights[ia, sy - 1] * y2
-    ra += r * control[ia, sy - 1]
-    rd += r
-    r = weights[ia, sy] * y3
-    ra += r * control[ia, sy]
-    rd += r
-    return ra, rd
-
-
-@numba.njit(cache=True, inline="always")
-def _cubic_point_value(px, py, kx, ky, control, weights, inv_wx, inv_wy):
-    """:func:`_point_value` for degree 3 with scalars instead of scratch arrays; the basis
-    values of interior spans are scaled by 6 on both axes (:func:`_cubic_basis_scaled`), which
-    cancels in A / D: the same value up to rounding, without 8 divisions per point."""
-    n0 = control.shape[0]
-    n1 = control.shape[1]
-    sx = _uniform_span(n0, 3, px, kx, inv_wx)
-    sy = _uniform_span(n1, 3, py, ky, inv_wy)
-    x0, x1, x2, x3 = _cubic_basis_scaled(sx, px, kx, n0, inv_wx)
-    y0, y1, y2, y3 = _cubic_basis_scaled(sy, py, ky, n1, inv_wy)
-    ra, rd = _cubic_row(control, weights, sx - 3, sy, y0, y1, y2, y3)
-    a = 0.0 + x0 * ra
-    d = 0.0 + x0 * rd
-    ra, rd = _cubic_row(control, weights, sx - 2, sy, y0, y1, y2, y3)
-    a += x1 * ra
-    d += x1 * rd
-    ra, rd = _cubic_row(control, weights, sx - 1, sy, y0, y1, y2, y3)
-    a += x2 * ra
-    d += x2 * rd
-    ra, rd = _cubic_row(control, weights, sx, sy, y0, y1, y2, y3)
-    a += x3 * ra
-    d += x3 * rd
-    return a / d
-
-
 @numba.njit(cache=True)
-def span_power_basis(knots, degree, n_ctrl, inv_width):
-    """The non-zero basis functions of every knot span of a clamped uniform knot vector in
-    power form: ``out[s, r, m]`` is the coefficient of u^m in N_{s + r}(t) on span
-    degree + s, u = (t - knots[degree + s]) * inv_width (0 to 1 across the span). A2.2 run on
-    polynomials: its ``left``/``right`` are linear in u and its denominators constant."""
+def span_power_basis(knots, degree, n_ctrl):
+    """The non-zero basis functions of every knot span of a clamped knot vector in power
+    form: ``out[s, r, m]`` is the coefficient of u^m in N_{s + r}(t) on span degree + s,
+    u = (t - knots[degree + s]) / (knots[degree + s + 1] - knots[degree + s]) (0 to 1 across
+    the span; an empty span is left 0). A2.2 run on polynomials: its ``left``/``right`` are
+    linear in u and its denominators constant."""
     p = degree
-    h = 1.0 / inv_width
     n_spans = n_ctrl - p
     out = np.zeros((n_spans, p + 1, p + 1))
     left0 = np.zeros(p + 1)  # left[j] = left0[j] + h u, right[j] = right0[j] - h u
@@ -424,6 +377,9 @@ def span_power_basis(knots, degree, n_ctrl, inv_width):
     saved = np.zeros(p + 1)
     for s in range(n_spans):
         span = p + s
+        h = knots[span + 1] - knots[span]
+        if not h > 0.0:
+            continue
         cur = out[s]
         cur[0, 0] = 1.0
         for j in range(1, p + 1):
@@ -445,14 +401,14 @@ def span_power_basis(knots, degree, n_ctrl, inv_width):
 
 
 @numba.njit(cache=True)
-def cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy):
+def cubic_span_coefficients(knots_x, knots_y, control, weights):
     """The numerator A and the denominator D of a cubic rational surface on every span pair
     as bicubic polynomials in the spans' local (u, v) (:func:`span_power_basis`): flat, 32
     per span pair (sx - 3) * n_spans_y + (sy - 3), the coefficient of u^m v^n of A at
     8 n + m and of D at 8 n + 4 + m (the 8 polynomials in v of a point are then contiguous)."""
     n0, n1 = control.shape
-    px = span_power_basis(knots_x, 3, n0, inv_wx)
-    py = span_power_basis(knots_y, 3, n1, inv_wy)
+    px = span_power_basis(knots_x, 3, n0)
+    py = span_power_basis(knots_y, 3, n1)
     nsx = n0 - 3
     nsy = n1 - 3
     # rows first: per control row ia and y span j, sum_b R Q N_b and sum_b R N_b in v
@@ -487,16 +443,16 @@ def _knot_range(knots_x, knots_y, tol_x, tol_y):
 
 
 @numba.njit(cache=True, inline="always")
-def _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy):
-    """(start of its coefficients, u, v) of the span pair holding local (px, py) on uniform
-    knots: one multiplication and truncation per axis, clamped to the end spans (which points
-    outside the knot range extrapolate); (u, v) local to the span pair
-    (:func:`cubic_span_coefficients`)."""
-    fx = (px - low_x) * inv_wx
-    fy = (py - low_y) * inv_wy
-    ix = min(max(int(fx), 0), nsx - 1)
-    iy = min(max(int(fy), 0), nsy - 1)
-    return (ix * nsy + iy) * 32, fx - ix, fy - iy
+def _cubic_span_at(px, py, kx, ky, n0, n1, lx, ly):
+    """(start of its coefficients, u, v, 1 / width along x, 1 / width along y) of the span
+    pair holding local (px, py): the spans by :func:`lookup_span` (``lx``/``ly``: the
+    axes' :func:`span_lookup`), clamped to the end spans (which points outside the knot range
+    extrapolate); (u, v) local to the span pair (:func:`cubic_span_coefficients`)."""
+    ix = lookup_span(px, kx, n0, 3, lx[0], lx[1]) - 3
+    iy = lookup_span(py, ky, n1, 3, ly[0], ly[1]) - 3
+    wx = lx[2][ix]
+    wy = ly[2][iy]
+    return (ix * (n1 - 3) + iy) * 32, (px - kx[ix + 3]) * wx, (py - ky[iy + 3]) * wy, wx, wy
 
 
 @numba.njit(cache=True, inline="always")
@@ -550,18 +506,13 @@ def _cubic_span_gradient(c, b, u, v):
 
 @numba.njit(cache=True, inline="always")
 def _heights_range(positions, out, first, last, origin_x, origin_y, origin_z, knots_x,
-                   knots_y, p, control, weights, tol_x, tol_y, coef):
+                   knots_y, p, control, weights, tol_x, tol_y, coef, lx, ly):
     """The heights of :func:`heights_above` of points first to last - 1 into ``out``
-    (``coef``: :func:`cubic_span_coefficients` for degree 3, else unused)."""
+    (``coef``: :func:`cubic_span_coefficients` for degree 3, else unused; ``lx``/``ly``: the
+    axes' :func:`span_lookup`)."""
     lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
     n0 = control.shape[0]
     n1 = control.shape[1]
-    inv_wx = _inverse_span_width(n0, p, knots_x)
-    inv_wy = _inverse_span_width(n1, p, knots_y)
-    nsx = n0 - p
-    nsy = n1 - p
-    low_x = knots_x[p]
-    low_y = knots_y[p]
     bx = np.empty(p + 1)
     by = np.empty(p + 1)
     left = np.empty(p + 1)
@@ -574,11 +525,11 @@ def _heights_range(positions, out, first, last, origin_x, origin_y, origin_z, kn
             out[k] = np.nan
             continue
         if p == 3:
-            b, u, v = _cubic_span_at(px, py, low_x, low_y, inv_wx, inv_wy, nsx, nsy)
+            b, u, v, _, _ = _cubic_span_at(px, py, knots_x, knots_y, n0, n1, lx, ly)
             s = _cubic_span_ratio(coef, b, u, v)
         else:
-            s = _point_value(px, py, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
-                             bx, by, left, right)
+            s = _point_value(px, py, knots_x, knots_y, p, control, weights, lx[0], lx[1],
+                             ly[0], ly[1], bx, by, left, right)
         out[k] = (z - origin_z) - s
 
 
@@ -587,10 +538,7 @@ def _span_coefficients(knots_x, knots_y, degree, control, weights):
     """:func:`cubic_span_coefficients` of a surface of degree 3, an empty array otherwise."""
     if degree != 3:
         return np.empty(0)
-    return cubic_span_coefficients(
-        knots_x, knots_y, control, weights,
-        _inverse_span_width(control.shape[0], 3, knots_x),
-        _inverse_span_width(control.shape[1], 3, knots_y))
+    return cubic_span_coefficients(knots_x, knots_y, control, weights)
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
@@ -603,21 +551,23 @@ def heights_above(positions, origin_x, origin_y, origin_z, knots_x, knots_y, deg
     give NaN. Chunks of points are split over threads; every point is computed alone, so the
     result does not depend on the thread count. Degree 3: A and D of each span pair as
     bicubic polynomials computed once (:func:`cubic_span_coefficients`), then per point the
-    span (one multiplication and truncation on the uniform knots, clamped to the end spans,
-    which points outside the knot range within the tolerance extrapolate), Horner evaluations
-    (multiply-adds may be fused) and one division: the value of the B-spline sums up to
-    rounding (1e-15 relative). The per-point code is :func:`_heights_range`, which
-    :func:`heights_above_serial` runs over all the points in one thread.
+    span pair (:func:`lookup_span`, clamped to the end spans, which points outside the knot
+    range within the tolerance extrapolate), Horner evaluations (multiply-adds may be fused)
+    and one division: the value of the B-spline sums up to rounding (1e-15 relative). The
+    per-point code is :func:`_heights_range`, which :func:`heights_above_serial` runs over
+    all the points in one thread.
     """
     n = positions.shape[0]
     out = np.empty(n)
     coef = _span_coefficients(knots_x, knots_y, degree, control, weights)
+    lx = span_lookup(knots_x, control.shape[0], degree)
+    ly = span_lookup(knots_y, control.shape[1], degree)
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
     for c in numba.prange(n_chunks):
         _heights_range(positions, out, c * chunk, min(n, (c + 1) * chunk), origin_x,
                        origin_y, origin_z, knots_x, knots_y, degree, control, weights, tol_x,
-                       tol_y, coef)
+                       tol_y, coef, lx, ly)
     return out
 
 
@@ -631,7 +581,9 @@ def heights_above_serial(positions, origin_x, origin_y, origin_z, knots_x, knots
     out = np.empty(positions.shape[0])
     _heights_range(positions, out, 0, positions.shape[0], origin_x, origin_y, origin_z,
                    knots_x, knots_y, degree, control, weights, tol_x, tol_y,
-                   _span_coefficients(knots_x, knots_y, degree, control, weights))
+                   _span_coefficients(knots_x, knots_y, degree, control, weights),
+                   span_lookup(knots_x, control.shape[0], degree),
+                   span_lookup(knots_y, control.shape[1], degree))
     return out
 
 
@@ -678,7 +630,9 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
                             control, weights, with_derivatives):
     """Rational tensor-product surface S = A / D and its first derivatives (quotient rule
     S_x = (A_x - S D_x) / D) at world points (x[k], y[k]) of a surface with local origin
-    (origin_x, origin_y), spans found in O(1) on the uniform knots.
+    (origin_x, origin_y), spans found in O(1) (:func:`lookup_span`). Degree 3: from the span
+    pairs' bicubic A and D (:func:`cubic_span_coefficients`), as :func:`heights_above`
+    evaluates S; other degrees by A2.2 and the derivative formula.
 
     NaN for non-finite input and for points outside the knot range widened by
     ``tol_x``/``tol_y``; points within the tolerance use the end span. Chunks of points are
@@ -692,9 +646,10 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
     z = np.empty(n)
     dzdx = np.empty(n) if with_derivatives else np.empty(0)
     dzdy = np.empty(n) if with_derivatives else np.empty(0)
-    inv_wx = _inverse_span_width(n0, p, knots_x)
-    inv_wy = _inverse_span_width(n1, p, knots_y)
     lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
+    coef = _span_coefficients(knots_x, knots_y, degree, control, weights)
+    lx = span_lookup(knots_x, n0, p)
+    ly = span_lookup(knots_y, n1, p)
     chunk = 4096
     n_chunks = (n + chunk - 1) // chunk
     for c in numba.prange(n_chunks):
@@ -713,30 +668,33 @@ def rational_surface_points(x, y, origin_x, origin_y, tol_x, tol_y, knots_x, kno
                     dzdx[k] = np.nan
                     dzdy[k] = np.nan
                 continue
-            if not with_derivatives:
-                if p == 3:
-                    z[k] = _cubic_point_value(xk, yk, knots_x, knots_y, control, weights,
-                                              inv_wx, inv_wy)
-                else:
-                    z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, inv_wx,
-                                        inv_wy, bx, by, left, right)
-                continue
-            z[k], dzdx[k], dzdy[k] = _point_first_derivatives(
-                xk, yk, knots_x, knots_y, p, control, weights, inv_wx, inv_wy, bx, by, dbx,
-                dby, left, right)
+            if p == 3:
+                b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, n0, n1, lx, ly)
+                z[k] = _cubic_span_ratio(coef, b, u, v)
+                if with_derivatives:
+                    su, sv = _cubic_span_gradient(coef, b, u, v)
+                    dzdx[k] = su * wx
+                    dzdy[k] = sv * wy
+            elif not with_derivatives:
+                z[k] = _point_value(xk, yk, knots_x, knots_y, p, control, weights, lx[0],
+                                    lx[1], ly[0], ly[1], bx, by, left, right)
+            else:
+                z[k], dzdx[k], dzdy[k] = _point_first_derivatives(
+                    xk, yk, knots_x, knots_y, p, control, weights, lx[0], lx[1], ly[0], ly[1],
+                    bx, by, dbx, dby, left, right)
     return z, dzdx, dzdy
 
 
 @numba.njit(cache=True, inline="always")
-def _point_first_derivatives(xk, yk, knots_x, knots_y, p, control, weights, inv_wx, inv_wy,
-                             bx, by, dbx, dby, left, right):
+def _point_first_derivatives(xk, yk, knots_x, knots_y, p, control, weights, tab_x, sc_x,
+                             tab_y, sc_y, bx, by, dbx, dby, left, right):
     """(S, S_x, S_y) at local (xk, yk) inside the knot range (widened by the tolerance):
-    spans on the uniform knots, basis values and derivatives, then the quotient rule.
+    spans by :func:`lookup_span`, basis values and derivatives, then the quotient rule.
     ``bx``/``by``/``dbx``/``dby``/``left``/``right``: scratch of size degree + 1."""
     n0 = control.shape[0]
     n1 = control.shape[1]
-    sx = _uniform_span(n0, p, xk, knots_x, inv_wx)
-    sy = _uniform_span(n1, p, yk, knots_y, inv_wy)
+    sx = lookup_span(xk, knots_x, n0, p, tab_x, sc_x)
+    sy = lookup_span(yk, knots_y, n1, p, tab_y, sc_y)
     basis_funs_first_derivative(sx, xk, p, knots_x, bx, dbx, left, right)
     basis_funs_first_derivative(sy, yk, p, knots_y, by, dby, left, right)
     a, d, ax, dx, ay, dy = _rational_sums_first_derivatives(sx, sy, p, control, weights,
@@ -761,13 +719,7 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
     p = degree
     n0 = control.shape[0]
     n1 = control.shape[1]
-    inv_wx = _inverse_span_width(n0, p, knots_x)
-    inv_wy = _inverse_span_width(n1, p, knots_y)
     lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
-    nsx = n0 - p
-    nsy = n1 - p
-    low_x = knots_x[p]
-    low_y = knots_y[p]
     # the candidates, without branches (labels and heights mix at random along a scan)
     candidates = np.empty(n, np.int32)
     count = 0
@@ -783,8 +735,9 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         count += ((label == obstacle) & (h <= obstacle_cap)) | ((label == below) & (h >= below_cap))
     if count == 0:
         return 0
-    coef = cubic_span_coefficients(knots_x, knots_y, control, weights, inv_wx, inv_wy) \
-        if p == 3 else np.empty(0)
+    coef = _span_coefficients(knots_x, knots_y, p, control, weights)
+    lx = span_lookup(knots_x, n0, p)
+    ly = span_lookup(knots_y, n1, p)
     bx = np.empty(p + 1)
     by = np.empty(p + 1)
     dbx = np.zeros(p + 1)
@@ -805,14 +758,14 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         factor = 1.0
         if xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y:
             if p == 3:
-                b, u, v = _cubic_span_at(xk, yk, low_x, low_y, inv_wx, inv_wy, nsx, nsy)
+                b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, n0, n1, lx, ly)
                 su, sv = _cubic_span_gradient(coef, b, u, v)
-                gx = su * inv_wx
-                gy = sv * inv_wy
+                gx = su * wx
+                gy = sv * wy
             else:
                 _, gx, gy = _point_first_derivatives(xk, yk, knots_x, knots_y, p, control,
-                                                     weights, inv_wx, inv_wy, bx, by, dbx,
-                                                     dby, left, right)
+                                                     weights, lx[0], lx[1], ly[0], ly[1], bx,
+                                                     by, dbx, dby, left, right)
             f = math.sqrt(1.0 + gx * gx + gy * gy)
             if math.isfinite(f):
                 factor = min(f, cap)
