@@ -88,7 +88,7 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
                     terrain_prior, range_noise, sensor_origin, max_slope_deg, cell_plane,
-                    refine):
+                    refine, knots):
     """The GridQuantize and RationalBSplineTerrain stages of the api's options (cached)."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
@@ -102,7 +102,7 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
                      control_points=None if control_points is None else tuple(control_points),
                      degree=degree, method=method, smoothing=smoothing,
                      terrain_prior=terrain_prior, max_slope_deg=max_slope_deg,
-                     cell_plane=cell_plane, refine=refine, **noise)
+                     cell_plane=cell_plane, refine=refine, knots=knots, **noise)
     return quantize, terrain
 
 
@@ -163,7 +163,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
                 sensor_origin: Sequence[float] = (0.0, 0.0, 0.0),
                 max_slope_deg: float = MAX_SLOPE_DEG,
-                cell_plane: bool = True, refine: bool = True) -> TerrainSurface:
+                cell_plane: bool = True, refine: bool = True,
+                knots: str = "auto") -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -193,13 +194,18 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     terrain points"); False = the robust loop's surface, about 30 % sooner on a 120k-point
     lidar frame. ``sensor_origin`` (cloud coordinates) is where those labels measure range
     from.
+    knots: "auto" (default) = "adaptive" on a vehicle's scan, "uniform" on a top-down scan
+    (no points near ``sensor_origin``); "adaptive" = knot spans narrower where the grid has
+    more measured cells and wider where it has few, when the layout's uniform spacing is
+    over 1.5 times 2 cells (a wide frame: the control points follow the ground near the
+    sensor; docs/algorithm.md, "Knots where the data are"); "uniform" = evenly spaced.
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, sensor_origin,
-                                        max_slope_deg, cell_plane, refine)
+                                        max_slope_deg, cell_plane, refine, knots)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         return _array_fit(positions, quantize, terrain)
@@ -215,8 +221,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     range_noise: RangeNoise | float | None = None,
                     misfit_threshold: bool = True, along_normal: bool = True,
                     foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG,
-                    cell_plane: bool = True,
-                    refine: bool = True) -> tuple[TerrainSurface, np.ndarray]:
+                    cell_plane: bool = True, refine: bool = True,
+                    knots: str = "auto") -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -253,7 +259,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                        foot_height=foot_height)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
-                                        max_slope_deg, cell_plane, refine)
+                                        max_slope_deg, cell_plane, refine, knots)
     positions = _array_positions(cloud)
     if positions is not None:  # numpy input: the stages' functions without a frame
         surface = _array_fit(positions, quantize, terrain)

@@ -72,7 +72,8 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     sample = sample.ravel()[cells]
     x0, y0, z0 = surface.origin
     local = (region[0] - x0, region[1] - x0, region[2] - y0, region[3] - y0)
-    basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, (n0, n1), surface.degree, local)
+    basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, (n0, n1), surface.degree, local,
+                      (surface.knots_x, surface.knots_y))
     with one_blas_thread():  # a small banded solve: BLAS threads cost more than they give
         q = basis.solve_cells(cells, sample - z0, np.ones(cells.size), None, smoothing)
     refined = TerrainSurface(surface.degree, basis.knots_x, basis.knots_y, q, np.ones_like(q),

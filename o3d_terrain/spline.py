@@ -36,6 +36,7 @@ __all__ = [
     "TerrainSurface",
     "SlopeGrid",
     "clamped_uniform_knots",
+    "clamped_knots",
     "make_lsq_surface",
     "GridBasis",
 ]
@@ -45,6 +46,26 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, low: float, high: float) -> 
     """Clamped uniform knot vector of ``n_ctrl + degree + 1`` knots over [low, high]."""
     _check_knots(n_ctrl, degree, low, high)
     return _bs.clamped_uniform_knots(int(n_ctrl), int(degree), float(low), float(high))
+
+
+def clamped_knots(n_ctrl: int, degree: int, low: float, high: float,
+                  density: np.ndarray | None = None) -> np.ndarray:
+    """Clamped knot vector of ``n_ctrl + degree + 1`` knots over [low, high]: the interior
+    knots at equal steps of the cumulative ``density`` (non-negative weights of equal bins
+    across [low, high], linear within a bin), so spans are narrow where the density is high;
+    :func:`clamped_uniform_knots` when ``density`` is None or has no positive weight."""
+    _check_knots(n_ctrl, degree, low, high)
+    if density is None:
+        return clamped_uniform_knots(n_ctrl, degree, low, high)
+    d = np.asarray(density, dtype=np.float64).ravel()
+    if d.size == 0 or not np.all(np.isfinite(d)) or np.any(d < 0) or not d.sum() > 0:
+        return clamped_uniform_knots(n_ctrl, degree, low, high)
+    cumulative = np.r_[0.0, np.cumsum(d)]
+    cumulative /= cumulative[-1]
+    edges = np.linspace(low, high, d.size + 1)
+    n_spans = n_ctrl - degree
+    interior = np.interp(np.arange(1, n_spans) / n_spans, cumulative, edges)
+    return np.r_[np.full(degree + 1, float(low)), interior, np.full(degree + 1, float(high))]
 
 
 def _check_knots(n_ctrl: int, degree: int, low: float, high: float) -> None:
@@ -364,27 +385,35 @@ class GridBasis:
     """
 
     def __init__(self, x_local: np.ndarray, y_local: np.ndarray, control_points: Sequence[int],
-                 degree: int, region_local: tuple[float, float, float, float]):
+                 degree: int, region_local: tuple[float, float, float, float],
+                 knots: tuple[np.ndarray, np.ndarray] | None = None):
+        """``knots``: the (x, y) knot vectors in local coordinates over ``region_local``;
+        None = clamped uniform knots."""
         n0, n1 = (int(v) for v in control_points)
         self.n0, self.n1, self.degree = n0, n1, int(degree)
         x_min, x_max, y_min, y_max = region_local
         _check_knots(n0, degree, x_min, x_max)
         _check_knots(n1, degree, y_min, y_max)
-        # per axis in one kernel: knots, spans and basis values at the cell centres (the values
-        # of clamped_uniform_knots and basis_table), Greville abscissae (mean of knots a + 1 ..
-        # a + degree, summed left to right)
+        if knots is None:
+            knots = (_bs.clamped_uniform_knots(n0, self.degree, float(x_min), float(x_max)),
+                     _bs.clamped_uniform_knots(n1, self.degree, float(y_min), float(y_max)))
+        # per axis in one kernel: spans and basis values at the cell centres (the values of
+        # basis_table), Greville abscissae (mean of knots a + 1 .. a + degree, summed left to
+        # right)
         self.knots_x, self.spans_x, self.basis_x, self.greville_x = _tk.axis_basis(
-            np.ascontiguousarray(x_local, dtype=np.float64), n0, self.degree, float(x_min),
-            float(x_max))
+            np.ascontiguousarray(x_local, dtype=np.float64),
+            np.ascontiguousarray(knots[0], dtype=np.float64), n0, self.degree)
         self.knots_y, self.spans_y, self.basis_y, self.greville_y = _tk.axis_basis(
-            np.ascontiguousarray(y_local, dtype=np.float64), n1, self.degree, float(y_min),
-            float(y_max))
+            np.ascontiguousarray(y_local, dtype=np.float64),
+            np.ascontiguousarray(knots[1], dtype=np.float64), n1, self.degree)
         self._matrix_x: np.ndarray | None = None
         self._matrix_y: np.ndarray | None = None
         self.bandwidth = max(degree * n1 + degree, 2 * n1)
         hx = (x_max - x_min) / max(n0 - 1, 1)
         hy = (y_max - y_min) / max(n1 - 1, 1)
         self.penalty_weights = (hy * hy / (hx * hx), 2.0, hx * hx / (hy * hy))
+        self.relative_spacing = (_relative_spacing(self.knots_x, n0, self.degree),
+                                 _relative_spacing(self.knots_y, n1, self.degree))
 
     @property
     def matrix_x(self) -> np.ndarray:
@@ -485,7 +514,8 @@ class GridBasis:
         if smoothing > 0:
             data_per_ctrl = weight_sum / (self.n0 * self.n1)
             _tk.add_thin_plate_band(band, self.n0, self.n1, smoothing * max(data_per_ctrl, 1e-12),
-                                    *self.penalty_weights, self.greville_x, self.greville_y)
+                                    *self.penalty_weights, self.greville_x, self.greville_y,
+                                    *self.relative_spacing)
         band[0] += ridge * scale
         return _solve_band(band, rhs).reshape(self.n0, self.n1)
 
@@ -513,6 +543,21 @@ class GridBasis:
         trace2 = np.maximum(np.trace(normal2, axis1=1, axis2=2) / self.n1, 1e-12)
         normal2 += (ridge * trace2)[:, None, None] * np.eye(self.n1)
         return np.linalg.solve(normal2, rhs2[..., None])[..., 0]
+
+
+def _relative_spacing(knots: np.ndarray, n_ctrl: int, degree: int) -> np.ndarray:
+    """Per control point, the mean width of the non-empty knot spans under its support
+    relative to the mean span width: the local spacing of the thin-plate penalty
+    (:func:`~o3d_terrain._kernels.terrain.add_thin_plate_band`); exactly 1 on uniform knots."""
+    widths = np.diff(knots[degree:n_ctrl + 1])
+    mean = (knots[n_ctrl] - knots[degree]) / widths.size
+    if np.ptp(widths) <= 1e-9 * mean:
+        return np.ones(n_ctrl)
+    all_widths = np.diff(knots)  # control point a's support: spans a .. a + degree
+    window = np.ones(degree + 1)
+    sums = np.convolve(all_widths, window, mode="valid")
+    counts = np.convolve(all_widths > 0, window, mode="valid")
+    return sums / np.maximum(counts, 1) / mean
 
 
 def _solve_band(band: np.ndarray, rhs: np.ndarray) -> np.ndarray:

@@ -30,12 +30,13 @@ from ._kernels import terrain as _tk
 from .grid import FILLED, MEASURED, HeightGrid
 from .ground_layer import default_layer, ground_layer_samples, overhung_ground_cells
 from .noise import GridNoise, RangeNoise
-from .spline import GridBasis, TerrainSurface
+from .spline import GridBasis, TerrainSurface, clamped_knots
 from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
            "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
-           "MAX_SLOPE_DEG", "NOISE_FLOOR", "TOP_DOWN_MAX_CONTROL_POINTS"]
+           "MAX_SLOPE_DEG", "NOISE_FLOOR", "TOP_DOWN_MAX_CONTROL_POINTS", "KNOT_PLACEMENTS",
+           "knot_densities"]
 
 METHODS = ("robust", "paper")
 
@@ -55,6 +56,12 @@ AUTO_MAX_CONTROL_POINTS = 32
 #: up to about 45 m across (docs/algorithm.md, "Local planes and a finer layout on a top-down
 #: scan")
 TOP_DOWN_MAX_CONTROL_POINTS = 48
+
+#: knot placements of the robust fit: uniform spans, or narrower where there are more data
+KNOT_PLACEMENTS = ("uniform", "adaptive")
+#: share of an adaptive layout's knot density that follows the measured cells (the rest is
+#: uniform, so no span grows beyond 1 / (1 - share) times the uniform spacing)
+ADAPTIVE_KNOT_SHARE = 0.4
 
 #: beyond AUTO_MAX_CONTROL_POINTS (extents over ~170 m: airborne tiles), the automatic layout
 #: keeps control points at most this far apart (m), up to AUTO_LIMIT_CONTROL_POINTS per axis
@@ -159,6 +166,7 @@ def fit_grid_detailed(
     range_noise: RangeNoise | None = None,
     cell_plane: bool = False,
     sensor_origin: Sequence[float] | None = None,
+    knots: str = "uniform",
 ) -> TerrainFit:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
@@ -214,8 +222,14 @@ def fit_grid_detailed(
         the prior's connectivity measures slope against that ground's plane
         (:func:`sensor_ground_plane`); its compact test does not. None = the grid's z is
         level.
+    knots: (robust) "uniform" spans, or "adaptive": spans narrower where the grid has more
+        measured cells and wider where it has few, when the layout's uniform spacing is
+        coarse for the grid (:func:`knot_densities`; the stage's default on a vehicle's
+        scan).
     """
     problems = []
+    if knots not in KNOT_PLACEMENTS:
+        problems.append(f"knots must be one of {KNOT_PLACEMENTS}, got {knots!r}")
     if method not in METHODS:
         problems.append(f"method must be one of {METHODS}, got {method!r}")
     if not (isinstance(degree, (int, np.integer)) and 1 <= degree <= 5):
@@ -318,10 +332,11 @@ def fit_grid_detailed(
             grid.state, np.ascontiguousarray(samples, dtype=np.float64),
             centre if use_mean else np.zeros((0, 0)), compact if use_mean else
             np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
+        densities = knot_densities(grid, n_max, degree) if knots == "adaptive" else None
         with one_blas_thread():  # small banded solves: BLAS threads cost more than they give
             fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree,
                               rational, smoothing, noise_floor, max_iterations, prior,
-                              grid_noise, z0, grid.state, float(grid.cell_size))
+                              grid_noise, z0, grid.state, float(grid.cell_size), densities)
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
     if method == "paper":
         samples = np.where(valid, samples + z0, np.nan)
@@ -491,6 +506,50 @@ def _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational, max_iter
     return q, r, basis, w, p, equalized, outliers, records, th
 
 
+def knot_densities(grid: HeightGrid, control_points: Sequence[int], degree: int = 3, *,
+                   share: float | None = None, min_spacing: float | None = None
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Knot densities of an adaptive layout (:func:`o3d_terrain.spline.clamped_knots`), one
+    weight per grid column along x and per grid row along y, or None for uniform knots.
+
+    Part of the density follows the measured cells' share in each column, the rest is
+    uniform; no span is narrower than ``min_spacing`` (default 2 cells: the weights are
+    capped and the excess spread over the others). The part that follows the data grows with
+    how far the uniform spacing exceeds ``min_spacing``: 0 up to 1.5 times it (a layout that
+    already resolves what the grid holds stays uniform), ``share`` (default
+    :data:`ADAPTIVE_KNOT_SHARE`) from 3 times it (a wide frame whose layout the control-point
+    cap made coarse)."""
+    share = ADAPTIVE_KNOT_SHARE if share is None else float(share)
+    if min_spacing is None:
+        min_spacing = 2.0 * grid.cell_size
+    measured = grid.state == MEASURED
+    x_min, x_max, y_min, y_max = grid.region
+    out = []
+    for axis, extent in ((0, x_max - x_min), (1, y_max - y_min)):
+        marginal = measured.sum(axis=1 - axis).astype(np.float64)
+        bins = marginal.size
+        n_spans = int(control_points[axis]) - degree
+        coarse = extent / n_spans / min_spacing  # the uniform spacing in units of the least
+        follow = share * min(max((coarse - 1.5) / 1.5, 0.0), 1.0)
+        # a span holds 1 / n_spans of the density; min_spacing metres hold at most that
+        cap = grid.cell_size / (n_spans * min_spacing)
+        if follow <= 0.0 or cap * bins <= 1.0 + 1e-9 or not marginal.sum() > 0:
+            out.append(None)
+            continue
+        d = (1.0 - follow) / bins + follow * marginal / marginal.sum()
+        for _ in range(64):
+            over = d > cap
+            if not over.any():
+                break
+            excess = float((d[over] - cap).sum())
+            d[over] = cap
+            d[~over] += excess * d[~over] / d[~over].sum()
+        out.append(d)
+    if out[0] is None and out[1] is None:
+        return None
+    return out[0], out[1]
+
+
 def _layouts(n_max, degree):
     """Coarse-to-fine control-point counts: halve the spacing at each level up to n_max."""
     levels = []
@@ -511,7 +570,7 @@ def _layouts(n_max, degree):
 
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
                 noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0, state=None,
-                cell_size=0.0):
+                cell_size=0.0, densities=None):
     """The robust loop on samples ``z`` (relative to z0) and base weights ``base``; returns
     (Q, R, basis, W, samples, equalized, outliers, records, noise) with the samples in world
     z on the cells of ``state`` != 0 (default: base > 0), NaN elsewhere. ``prior``: (m0, m1)
@@ -563,7 +622,11 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     coarse_surface = np.zeros(coarse.size)
     coarse_denominators = np.zeros(coarse.size)
     for level, n in enumerate(layouts):
-        basis = GridBasis(xl, yl, n, degree, region_local)
+        knots = None
+        if densities is not None:
+            knots = (clamped_knots(n[0], degree, *region_local[:2], densities[0]),
+                     clamped_knots(n[1], degree, *region_local[2:], densities[1]))
+        basis = GridBasis(xl, yl, n, degree, region_local, knots)
         final = level == len(layouts) - 1
         if final and level > 0 and filled.size:
             # the filled cells: the last coarse surface at them, then their weights, ratios

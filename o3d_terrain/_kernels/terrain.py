@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-from .bspline import basis_funs_scratch, clamped_uniform_knots, find_span
+from .bspline import basis_funs_scratch, find_span
 
 
 @numba.njit(cache=True, inline="always")
@@ -31,7 +31,7 @@ def _second_difference(greville, a, h, coef):
 
 @numba.njit(cache=True)
 def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, greville_x,
-                        greville_y):
+                        greville_y, relative_x, relative_y):
     """Add ``scale`` times a discrete thin-plate energy of the control points to the band.
 
     Energy = weight_xx sum (h_x^2 d2Q/dx2)^2 + weight_yy sum (h_y^2 d2Q/dy2)^2
@@ -41,6 +41,10 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, gr
     the stencils are (1, -2, 1) and (1, -1, -1, 1). Its null space is exactly the planes
     (a B-spline reproduces a plane with Q = plane at the Greville abscissae), so data-free
     control points continue the surface linearly and planes are fitted without bias.
+    On uneven knots h is local: each stencil's term is multiplied by (r_x r_y)^2, r the
+    control points' span width relative to the mean (``relative_x``/``_y``, one per control
+    point; a mixed stencil takes the mean of its two), so that in units of the local spacing
+    the penalty is the uniform one (1 everywhere on uniform knots: the same values).
     """
     hx = greville_x[min(2, n0 - 1)] - greville_x[min(1, n0 - 2)] if n0 > 3 else 1.0
     hy = greville_y[min(2, n1 - 1)] - greville_y[min(1, n1 - 2)] if n1 > 3 else 1.0
@@ -74,6 +78,12 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, gr
             continue
         for a in range(a_start, a_end):
             for b in range(b_start, b_end):
+                if kind == 2:
+                    rel = 0.25 * (relative_x[a] + relative_x[a + 1]) * \
+                        (relative_y[b] + relative_y[b + 1])
+                else:
+                    rel = relative_x[a] * relative_y[b]
+                wr = w * rel * rel
                 if kind == 0:
                     n = 3
                     idx[0] = (a - 1) * n1 + b
@@ -102,7 +112,7 @@ def add_thin_plate_band(band, n0, n1, scale, weight_xx, weight_xy, weight_yy, gr
                     for s in range(n):
                         d = idx[s] - idx[u]
                         if 0 <= d <= bandwidth:
-                            band[d, idx[u]] += w * coef[u] * coef[s]
+                            band[d, idx[u]] += wr * coef[u] * coef[s]
     return band
 
 
@@ -383,14 +393,12 @@ def scatter_cells(state, cells, weights, samples, equalized, z, surface, thresho
 
 
 @numba.njit(cache=True)
-def axis_basis(t, n_ctrl, degree, low, high):
-    """One axis of a grid basis in one call: the clamped uniform knots over [low, high]
-    (:func:`~o3d_terrain._kernels.bspline.clamped_uniform_knots`), the span and the degree + 1
-    non-zero basis values at every parameter of ``t`` (what ``basis_table(t, n_ctrl, degree,
-    knots, 0)`` gives, as an (m, degree + 1) table; non-finite t: span -1, values 0) and the
-    Greville abscissae (knots a + 1 .. a + degree summed left to right, then divided by the
-    degree). The same operations as the separate calls, so the same values."""
-    knots = clamped_uniform_knots(n_ctrl, degree, low, high)
+def axis_basis(t, knots, n_ctrl, degree):
+    """One axis of a grid basis in one call: the knots (returned as given), the span and the
+    degree + 1 non-zero basis values at every parameter of ``t`` (what ``basis_table(t, n_ctrl,
+    degree, knots, 0)`` gives, as an (m, degree + 1) table; non-finite t: span -1, values 0)
+    and the Greville abscissae (knots a + 1 .. a + degree summed left to right, then divided
+    by the degree). The same operations as the separate calls, so the same values."""
     m = t.shape[0]
     spans = np.empty(m, np.int64)
     values = np.zeros((m, degree + 1))

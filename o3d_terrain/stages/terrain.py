@@ -13,6 +13,7 @@ from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import refine_surface
 from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points, sensor_in_cloud
 from ..terrain import (
+    KNOT_PLACEMENTS,
     MAX_SLOPE_DEG,
     METHODS,
     NOISE_FLOOR,
@@ -112,6 +113,14 @@ class RationalBSplineTerrain(Stage):
                                   help="sensor position in cloud coordinates, for range_noise, "
                                        "refine's labels and the terrain prior's level (the "
                                        "ground around it, when the sensor is tilted)")
+    knots: str = option(
+        "auto", choices=("auto",) + KNOT_PLACEMENTS,
+        help="robust method: 'adaptive' knot spans, narrower where the grid has more "
+             "measured cells (near a vehicle's sensor) and wider where it has few, when the "
+             "control-point cap leaves the uniform spacing over 1.5 times 2 cells (a wide "
+             "frame); 'uniform' spans; 'auto' = uniform on a top-down scan (no points near "
+             "sensor_origin: an airborne tile), else adaptive (docs/algorithm.md, 'Knots "
+             "where the data are')")
 
     def check_options(self) -> list[str]:
         if self.control_points is not None and min(self.control_points) < self.degree + 1:
@@ -136,11 +145,16 @@ class RationalBSplineTerrain(Stage):
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
-        if control_points is None and positions is not None and self.method == "robust" \
-                and not sensor_in_cloud(positions, self.sensor_origin):
+        top_down = positions is not None and self.method == "robust" \
+            and (control_points is None or self.knots == "auto") \
+            and not sensor_in_cloud(positions, self.sensor_origin)
+        if control_points is None and top_down:
             # a top-down scan (an airborne tile) is not fitted at a vehicle's frame rate
             control_points = default_control_points(grid, self.degree,
                                                     most=TOP_DOWN_MAX_CONTROL_POINTS)
+        knots = self.knots
+        if knots == "auto":
+            knots = "uniform" if top_down else "adaptive"
         fit = fit_grid_detailed(
             grid, control_points=control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
@@ -149,7 +163,7 @@ class RationalBSplineTerrain(Stage):
             max_obstacle_width=self.max_obstacle_width,
             positions=positions if self.ground_layer else None,
             ground_layer=self.ground_layer, range_noise=range_noise,
-            cell_plane=self.cell_plane, sensor_origin=self.sensor_origin,
+            cell_plane=self.cell_plane, sensor_origin=self.sensor_origin, knots=knots,
         )
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         # with a range-noise model the loop already weighs each cell's noise, which the refit
