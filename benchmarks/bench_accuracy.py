@@ -17,7 +17,7 @@
 5. ``--only airborne``: airborne strips over the synthetic scenes (:func:`run_airborne`),
    ``segment_terrain``'s labels with all defaults; ``--peers`` adds CSF and SMRF.
 6. ``--only wide``: 360-degree lidar frames 120 m wide over the synthetic scenes
-   (:func:`run_wide`), the default layout against 64 x 64 control points.
+   (:func:`run_wide`), the default layout against uniform knots and 64 x 64 control points.
 ``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
 sensors, for the synthetic and the steep scenes; ``--sensors high_mount,high_pitched,lidar128,
 low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurious``: a
@@ -259,24 +259,25 @@ def run_airborne(method: str, scenes, peers: bool) -> None:
 def run_wide(method: str, scenes) -> None:
     """360-degree frames 120 m wide (the scenes over (-60, 60) m on both axes, a 32-channel
     lidar 1.8 m up, 1,800 firings per turn; the default obstacles 20 m farther out): the
-    labels of ``segment_terrain`` with all defaults (32 x 32 control points, 3.9 m apart)
-    and with 64 x 64 (1.9 m), against the truth, and the time of each fit."""
+    labels of ``segment_terrain`` with all defaults (32 x 32 control points, adaptive knots),
+    with uniform knots (3.9 m apart) and with 64 x 64, against the truth, and the time of
+    each fit."""
     from o3d_terrain.synthetic import Obstacle, default_obstacles, make_scene, sample_lidar
 
     obstacles = tuple(Obstacle(o.kind, (o.center[0] + 20.0, o.center[1]), o.size, o.height,
                                o.yaw_deg) for o in default_obstacles(0))
-    layouts = (None, (64, 64))
+    layouts = (("default", {}), ("uniform knots", {"knots": "uniform"}),
+               ("64 x 64", {"control_points": (64, 64)}))
     print("| scene | points |" + "".join(
-        f" {'default' if n is None else f'{n[0]} x {n[1]}'}: RMSE (m) / ground F1 / obstacle "
-        "recall / s |" for n in layouts))
+        f" {name}: RMSE (m) / ground F1 / obstacle recall / s |" for name, _ in layouts))
     print("|---|---|" + "---|" * len(layouts))
     for name in scenes:
         scene = make_scene(name, seed=0, obstacles=False,
                            region=(-60.0, 60.0, -60.0, 60.0)).with_obstacles(obstacles)
         cloud = sample_lidar(scene, beams=32, azimuth_steps=1800, seed=0)
         row = f"| {name} | {len(cloud):,} |"
-        for layout in layouts:
-            r = _default_labels(cloud, method, control_points=layout)
+        for _, options in layouts:
+            r = _default_labels(cloud, method, **options)
             row += (f" {r['rmse']:.3f} / {f1_score(r['ground'], r['terrain'])[2]:.4f} / "
                     f"{float(np.mean(~r['ground'][r['tall']])):.3f} / {r['seconds']:.2f} |")
         print(row, flush=True)
