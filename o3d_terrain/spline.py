@@ -9,10 +9,11 @@ Definitions (Broggi et al. 2013, eq. 2 with the denominator fixed, see docs/algo
 
     S(x, y) = sum_ab R_ab N_a(x) N_b(y) Q_ab / sum_ab R_ab N_a(x) N_b(y)
 
-with clamped knots over the region (the fits place them uniformly; a surface may carry any
-clamped, non-decreasing knot vectors and evaluates on them exactly) and B-spline basis
-functions N of polynomial ``degree`` (the paper's "order 3" is degree 3). Coordinates are stored relative to ``origin``
-= (x0, y0, z0) so that projected (UTM) coordinates keep sub-millimetre precision.
+with clamped knots over the region (uniform, or following the data on a wide vehicle frame:
+:func:`clamped_knots`; a surface evaluates exactly on any clamped, non-decreasing knot
+vectors) and B-spline basis functions N of polynomial ``degree`` (the paper's "order 3" is
+degree 3). Coordinates are stored relative to ``origin`` = (x0, y0, z0) so that projected
+(UTM) coordinates keep sub-millimetre precision.
 
 Outside its region a surface is undefined: evaluation there returns NaN (not a clamped or
 extrapolated value), so callers can tell "no terrain model here" from "flat terrain here".
