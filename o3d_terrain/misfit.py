@@ -24,6 +24,12 @@ surface's slope, by half a control spacing x tan(slope) over the global one (at 
 :data:`MISFIT_HIGH`): the detail the surface misses lies within about half a spacing of where
 the data pin it. Elsewhere the global threshold is unchanged.
 
+The widened threshold does not take the returns of a vertical face: a point more than
+:data:`MISFIT_FACE_LOW` above the surface whose x/y column (:data:`MISFIT_FACE_CELL`) holds
+points spanning more than :data:`MISFIT_FACE_SPREAD` vertically stays an obstacle
+(:func:`face_points`): a car or a person beside rough ground stacks its returns in one column,
+a ridge the surface undercuts does not (a column crosses it at the terrain's slope).
+
 In widened blocks the points still above their threshold are then measured against the
 terrain around them instead of the surface (:func:`local_plane_terrain`): a point at most the
 global threshold above the plane through the terrain points within half a control spacing
@@ -42,7 +48,8 @@ import numpy as np
 from ._kernels import local_plane as _lp
 
 __all__ = ["misfit_thresholds", "widened_thresholds", "block_size", "MISFIT_FACTOR",
-           "MISFIT_HIGH", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
+           "MISFIT_HIGH", "MISFIT_FACE_LOW", "MISFIT_FACE_CELL", "MISFIT_FACE_SPREAD",
+           "face_points", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
            "MISFIT_REACH", "MISFIT_PLANE_MIN_POINTS", "MISFIT_PLANE_ROUNDS",
            "local_plane_terrain", "misfit_reach", "plane_radius", "PLANE_POINTS"]
 
@@ -52,6 +59,14 @@ MISFIT_FACTOR = 3.5
 MISFIT_HIGH = 1.5
 #: side of the cells whose mean height samples the ground (m)
 MISFIT_CELL = 1.0
+#: the widened threshold does not take a point more than MISFIT_FACE_LOW (m) above the surface
+#: whose x/y column of side MISFIT_FACE_CELL (m) spans more than MISFIT_FACE_SPREAD (m)
+#: vertically: a wall or an object's side, whose returns stack in one column, not a ridge the
+#: surface undercuts, which a column crosses at the terrain's slope (docs/algorithm.md,
+#: "Vertical faces in widened blocks")
+MISFIT_FACE_LOW = 0.5
+MISFIT_FACE_CELL = 0.3
+MISFIT_FACE_SPREAD = 0.3
 #: side of a block, in control spacings (the scale on which the surface's misfit varies)
 MISFIT_BLOCK = 2.0
 #: a block's threshold replaces the global one only when at least this many times larger
@@ -304,6 +319,23 @@ def widened_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: fl
             g = np.where(np.isfinite(g), g, 0.0)
             out[wide] = np.maximum(out[wide], np.minimum(threshold + reach * g, high))
     return out
+
+
+def face_points(positions: np.ndarray, heights: np.ndarray, candidates: np.ndarray, *,
+                low: float = MISFIT_FACE_LOW, cell: float = MISFIT_FACE_CELL,
+                spread: float = MISFIT_FACE_SPREAD, high: float = 2.0 * MISFIT_HIGH
+                ) -> np.ndarray:
+    """The ``candidates`` (indices) more than ``low`` above the surface whose x/y column of
+    side ``cell`` holds points (heights below ``high`` in magnitude) spanning more than
+    ``spread`` vertically: the returns of a vertical face."""
+    idx = np.ascontiguousarray(candidates, dtype=np.int64)
+    h = np.ascontiguousarray(heights, dtype=np.float64)
+    idx = idx[h[idx] > low]
+    if idx.size == 0:
+        return idx
+    extent = _lp.column_spread(np.asarray(positions, dtype=np.float64), h, float(high), idx,
+                               float(cell))
+    return idx[extent > spread]
 
 
 def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.ndarray,

@@ -31,6 +31,7 @@ from .errors import InputError
 from .misfit import (
     MISFIT_HIGH,
     block_size,
+    face_points,
     local_plane_terrain,
     misfit_reach,
     plane_radius,
@@ -284,7 +285,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     sensor_origin: (x, y, z) of the sensor, for the range (cloud coordinates), and where the
         misfit's slope term takes level from (:func:`sensor_ground_gradient`).
     misfit: with ``threshold`` None, widen the threshold (both sides) where the surface's
-        local misfit to the ground exceeds the noise, and there measure the points still
+        local misfit to the ground exceeds the noise (except for points more than 0.5 m up
+        in a column whose points stack vertically, the returns of an object's side:
+        :func:`o3d_terrain.misfit.face_points`), and there measure the points still
         above it against the plane through the terrain around them
         (:mod:`o3d_terrain.misfit`, :func:`o3d_terrain.misfit.local_plane_terrain`); on a
         top-down scan (no points near ``sensor_origin``, :func:`sensor_in_cloud`: an airborne
@@ -334,7 +337,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                            range_high=range_high)
     widened = local is not None and local.max(initial=threshold) > threshold
     if widened:
-        widen_labels(labels, h, local, threshold)
+        taken = widen_labels(labels, h, local, threshold)
+        # ... but not the returns of a vertical face (an object's side beside ground the
+        # surface misfits; docs/algorithm.md, "Vertical faces in widened blocks")
+        labels[face_points(p, h, taken)] = TerrainLabel.OBSTACLE
     if along_normal and isinstance(surface, TerrainSurface):
         relabel_along_normal(labels, h, p, surface, threshold=threshold,
                              below_threshold=below_threshold,
@@ -476,14 +482,16 @@ def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,
 
 
 def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,
-                 threshold: float) -> None:
+                 threshold: float) -> np.ndarray:
     """In place, at the points whose threshold ``local`` is wider than the global
     ``threshold`` the labels used: OBSTACLE points with h <= local and BELOW_TERRAIN points
-    with h >= -local become TERRAIN."""
+    with h >= -local become TERRAIN. Returns the indices of the OBSTACLE points that did."""
     wide = local > threshold
-    labels[wide & (labels == TerrainLabel.OBSTACLE) & (heights <= local)] = TerrainLabel.TERRAIN
+    taken = np.flatnonzero(wide & (labels == TerrainLabel.OBSTACLE) & (heights <= local))
+    labels[taken] = TerrainLabel.TERRAIN
     labels[wide & (labels == TerrainLabel.BELOW_TERRAIN)
            & (heights >= -local)] = TerrainLabel.TERRAIN
+    return taken
 
 
 def label_heights(heights: np.ndarray, positions, *, threshold: float, below_threshold: float,

@@ -187,3 +187,54 @@ def points_per_square_metre(positions, selected):
                 seen[c] = True
                 occupied += 1
     return count / (occupied * cell * cell)
+
+
+@numba.njit(cache=True)
+def column_spread(positions, heights, high, candidates, cell):
+    """For each candidate point, the vertical extent (highest minus lowest z) of the points in
+    its x/y column of side ``cell``: the points with a finite height of magnitude below
+    ``high`` count (a canopy far above does not). The columns tile the candidates' bounding
+    box from its lower corner (at most about 4096 per axis: a wider box gets wider columns).
+    0 where a column holds one point."""
+    m = candidates.shape[0]
+    out = np.zeros(m)
+    if m == 0:
+        return out
+    x_min = math.inf
+    x_max = -math.inf
+    y_min = math.inf
+    y_max = -math.inf
+    for i in range(m):
+        k = candidates[i]
+        x_min = min(x_min, positions[k, 0])
+        x_max = max(x_max, positions[k, 0])
+        y_min = min(y_min, positions[k, 1])
+        y_max = max(y_max, positions[k, 1])
+    side = max(cell, (x_max - x_min) / 4096.0, (y_max - y_min) / 4096.0)
+    nx = int((x_max - x_min) / side) + 1
+    ny = int((y_max - y_min) / side) + 1
+    wanted = np.zeros(nx * ny, np.bool_)
+    for i in range(m):
+        k = candidates[i]
+        wanted[int((positions[k, 0] - x_min) / side) * ny
+               + int((positions[k, 1] - y_min) / side)] = True
+    low = np.full(nx * ny, math.inf)
+    top = np.full(nx * ny, -math.inf)
+    for k in range(positions.shape[0]):
+        h = heights[k]
+        if not (abs(h) < high):  # also skips NaN heights (non-finite or outside the surface)
+            continue
+        fx = (positions[k, 0] - x_min) / side
+        fy = (positions[k, 1] - y_min) / side
+        if not (fx >= 0.0 and fx < nx and fy >= 0.0 and fy < ny):
+            continue
+        c = int(fx) * ny + int(fy)
+        if wanted[c]:
+            z = positions[k, 2]
+            low[c] = min(low[c], z)
+            top[c] = max(top[c], z)
+    for i in range(m):
+        k = candidates[i]
+        c = int((positions[k, 0] - x_min) / side) * ny + int((positions[k, 1] - y_min) / side)
+        out[i] = top[c] - low[c] if top[c] >= low[c] else 0.0
+    return out
