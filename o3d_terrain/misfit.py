@@ -62,8 +62,8 @@ MISFIT_CELL = 1.0
 #: the widened threshold does not take a point more than MISFIT_FACE_LOW (m) above the surface
 #: whose x/y column of side MISFIT_FACE_CELL (m) spans more than MISFIT_FACE_SPREAD (m)
 #: vertically: a wall or an object's side, whose returns stack in one column, not a ridge the
-#: surface undercuts, which a column crosses at the terrain's slope (docs/algorithm.md,
-#: "Vertical faces in widened blocks")
+#: surface undercuts, which a column crosses at the terrain's slope (docs/algorithm.md, "Knots
+#: where the data are", its paragraph "Vertical faces in widened blocks")
 MISFIT_FACE_LOW = 0.5
 MISFIT_FACE_CELL = 0.3
 MISFIT_FACE_SPREAD = 0.3

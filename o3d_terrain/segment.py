@@ -339,7 +339,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     if widened:
         taken = widen_labels(labels, h, local, threshold)
         # ... but not the returns of a vertical face (an object's side beside ground the
-        # surface misfits; docs/algorithm.md, "Vertical faces in widened blocks")
+        # surface misfits; docs/algorithm.md, "Knots where the data are", "Vertical faces in
+        # widened blocks")
         labels[face_points(p, h, taken)] = TerrainLabel.OBSTACLE
     if along_normal and isinstance(surface, TerrainSurface):
         relabel_along_normal(labels, h, p, surface, threshold=threshold,
