@@ -508,9 +508,10 @@ def _fit_paper(z, valid, xl, yl, region_local, n_max, degree, rational, max_iter
 
 def knot_densities(grid: HeightGrid, control_points: Sequence[int], degree: int = 3, *,
                    share: float | None = None, min_spacing: float | None = None
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
+                   ) -> tuple[np.ndarray | None, np.ndarray | None] | None:
     """Knot densities of an adaptive layout (:func:`o3d_terrain.spline.clamped_knots`), one
-    weight per grid column along x and per grid row along y, or None for uniform knots.
+    weight per grid column along x and per grid row along y (None along an axis that keeps
+    uniform knots), or None for uniform knots on both.
 
     Part of the density follows the measured cells' share in each column, the rest is
     uniform; no span is narrower than ``min_spacing`` (default 2 cells: the weights are

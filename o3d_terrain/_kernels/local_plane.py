@@ -23,15 +23,11 @@ import numpy as np
 _MAX_CELLS = 4096.0
 
 
-@numba.njit(cache=True)
-def local_plane_terrain(positions, heights, terrain, candidates, radius, threshold,
-                        min_points, max_rounds):
-    """In place: ``terrain[i]`` (bool, (N,)) set for the ``candidates`` (int64 indices) that
-    lie at most ``threshold`` above the local plane of the terrain points around them (module
-    docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. Returns how many
-    candidates became terrain."""
-    if candidates.size == 0 or not radius > 0.0:
-        return 0
+@numba.njit(cache=True, inline="always")
+def _candidate_grid(positions, candidates, margin, cell):
+    """(x0, x1, y0, y1, side, nx, ny): the candidates' x/y bounding box grown by ``margin``,
+    tiled from (x0, y0) by square cells at least ``cell`` wide (wider when the box would
+    need more than :data:`_MAX_CELLS` per axis), nx x ny of them."""
     x0 = np.inf
     x1 = -np.inf
     y0 = np.inf
@@ -42,13 +38,24 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         x1 = max(x1, positions[i, 0])
         y0 = min(y0, positions[i, 1])
         y1 = max(y1, positions[i, 1])
-    x0 -= radius
-    y0 -= radius
-    x1 += radius
-    y1 += radius
-    cell = max(radius, (x1 - x0) / _MAX_CELLS, (y1 - y0) / _MAX_CELLS)
-    nx = int((x1 - x0) / cell) + 1
-    ny = int((y1 - y0) / cell) + 1
+    x0 -= margin
+    y0 -= margin
+    x1 += margin
+    y1 += margin
+    side = max(cell, (x1 - x0) / _MAX_CELLS, (y1 - y0) / _MAX_CELLS)
+    return x0, x1, y0, y1, side, int((x1 - x0) / side) + 1, int((y1 - y0) / side) + 1
+
+
+@numba.njit(cache=True)
+def local_plane_terrain(positions, heights, terrain, candidates, radius, threshold,
+                        min_points, max_rounds):
+    """In place: ``terrain[i]`` (bool, (N,)) set for the ``candidates`` (int64 indices) that
+    lie at most ``threshold`` above the local plane of the terrain points around them (module
+    docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. Returns how many
+    candidates became terrain."""
+    if candidates.size == 0 or not radius > 0.0:
+        return 0
+    x0, x1, y0, y1, cell, nx, ny = _candidate_grid(positions, candidates, radius, radius)
     n = heights.size
     cell_of = np.full(n, -1, np.int64)
     start = np.zeros(nx * ny + 1, np.int64)
@@ -194,25 +201,13 @@ def column_spread(positions, heights, high, candidates, cell):
     """For each candidate point, the vertical extent (highest minus lowest z) of the points in
     its x/y column of side ``cell``: the points with a finite height of magnitude below
     ``high`` count (a canopy far above does not). The columns tile the candidates' bounding
-    box from its lower corner (at most about 4096 per axis: a wider box gets wider columns).
-    0 where a column holds one point."""
+    box from its lower corner (:func:`_candidate_grid`: at most about 4096 per axis, a wider
+    box gets wider columns). 0 where a column holds one point."""
     m = candidates.shape[0]
     out = np.zeros(m)
     if m == 0:
         return out
-    x_min = math.inf
-    x_max = -math.inf
-    y_min = math.inf
-    y_max = -math.inf
-    for i in range(m):
-        k = candidates[i]
-        x_min = min(x_min, positions[k, 0])
-        x_max = max(x_max, positions[k, 0])
-        y_min = min(y_min, positions[k, 1])
-        y_max = max(y_max, positions[k, 1])
-    side = max(cell, (x_max - x_min) / 4096.0, (y_max - y_min) / 4096.0)
-    nx = int((x_max - x_min) / side) + 1
-    ny = int((y_max - y_min) / side) + 1
+    x_min, _, y_min, _, side, nx, ny = _candidate_grid(positions, candidates, 0.0, cell)
     wanted = np.zeros(nx * ny, np.bool_)
     for i in range(m):
         k = candidates[i]

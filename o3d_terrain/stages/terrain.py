@@ -145,6 +145,7 @@ class RationalBSplineTerrain(Stage):
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
+        # whether the scan is top-down, asked only when the layout or the knots depend on it
         top_down = positions is not None and self.method == "robust" \
             and (control_points is None or self.knots == "auto") \
             and not sensor_in_cloud(positions, self.sensor_origin)
