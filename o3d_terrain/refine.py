@@ -5,11 +5,11 @@ from one sample per cell and its residual to a surface that is itself still bein
 The labelling that follows it (:func:`o3d_terrain.segment.segment_points`) decides per point
 and knows more: the misfit's local planes, the thresholds along the normal, the feet of
 objects. :func:`refine_surface` labels the points against the robust surface with the
-automatic rule, then fits the same spline layout again by plain least squares to the points
-labelled terrain alone: per cell of the grid the terrain points' own sample, weight 1, the
-thin-plate penalty bridging the cells without terrain points. The robust surface's wobble
-between sparse scan lines and its bias under noisy cells go; measured in docs/algorithm.md,
-"Refit on the terrain points".
+automatic rule (all but the feet of objects), then fits the same spline layout again by
+plain least squares to the points labelled terrain alone: per cell of the grid the terrain
+points' own sample, weight 1, the thin-plate penalty bridging the cells without terrain
+points. The robust surface's wobble between sparse scan lines and its bias under noisy
+cells go; measured in docs/algorithm.md, "Refit on the terrain points".
 
 The sample of a cell is eq. 1 with the in-cell slope removed (the height of the least-squares
 plane of its terrain points at the cell centre minus their spread about it), at least that
@@ -50,7 +50,11 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     cloud's coordinates, for the labelling (its range term and its level); cell_plane: False =
     eq. 1 about the cells' means, not their planes (as the fit's option)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
-    labels, _ = segment_points(surface, p, threshold=None, sensor_origin=sensor_origin)
+    # without the feet of objects: they lie within the threshold, and the cell samples (eq. 1
+    # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
+    # "Refit on the terrain points")
+    labels, _ = segment_points(surface, p, threshold=None, sensor_origin=sensor_origin,
+                               foot_height=0.0)
     terrain = np.compress(labels == TerrainLabel.TERRAIN, p, axis=0)  # ~3x faster than p[mask]
     n0, n1 = surface.control_points.shape
     if len(terrain) == 0:

@@ -59,14 +59,21 @@ def clamped_knots(n_ctrl: int, degree: int, low: float, high: float,
     if density is None:
         return clamped_uniform_knots(n_ctrl, degree, low, high)
     d = np.asarray(density, dtype=np.float64).ravel()
-    if d.size == 0 or not np.all(np.isfinite(d)) or np.any(d < 0) or not d.sum() > 0:
+    cumulative = np.empty(d.size + 1)
+    cumulative[0] = 0.0
+    np.cumsum(d, out=cumulative[1:])
+    total = cumulative[-1]
+    # finite, non-negative and some positive weight (NaN fails every comparison)
+    if d.size == 0 or not (0.0 < total < np.inf) or d.min() < 0:
         return clamped_uniform_knots(n_ctrl, degree, low, high)
-    cumulative = np.r_[0.0, np.cumsum(d)]
-    cumulative /= cumulative[-1]
+    cumulative /= total
     edges = np.linspace(low, high, d.size + 1)
     n_spans = n_ctrl - degree
-    interior = np.interp(np.arange(1, n_spans) / n_spans, cumulative, edges)
-    return np.r_[np.full(degree + 1, float(low)), interior, np.full(degree + 1, float(high))]
+    knots = np.empty(n_ctrl + degree + 1)
+    knots[:degree + 1] = low
+    knots[n_ctrl:] = high
+    knots[degree + 1:n_ctrl] = np.interp(np.arange(1, n_spans) / n_spans, cumulative, edges)
+    return knots
 
 
 def _check_knots(n_ctrl: int, degree: int, low: float, high: float) -> None:
