@@ -19,7 +19,8 @@ from .frame import LABELS, Frame, as_frame
 from .grid import region_of
 from .ground_layer import default_layer
 from .noise import RangeNoise
-from .segment import AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, TerrainLabel
+from .segment import (AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, FOOT_LINES,
+                      TerrainLabel)
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
@@ -222,7 +223,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     misfit_threshold: bool = True, along_normal: bool = True,
                     foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG,
                     cell_plane: bool = True, refine: bool = True,
-                    knots: str = "auto") -> tuple[TerrainSurface, np.ndarray]:
+                    knots: str = "auto",
+                    foot_lines: float = FOOT_LINES) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -240,7 +242,10 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     0.15 m x/y column that also holds obstacle points less than this high above the terrain
     (above the local noise, 30 % or more of the column, with an object at least 0.35 m high
     in it or beside it) are the foot of that object (a bush, a wall, a wheel) and not
-    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`). ``sensor_origin``: where
+    inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`); on a rotating lidar's
+    scan around ``sensor_origin`` the foot height grows with range to ``foot_lines`` times the
+    height between neighbouring scan lines on a vertical face there, at most 1.5 m (0 = the
+    same at every range; :func:`o3d_terrain.segment.scan_line_spacing`). ``sensor_origin``: where
     the sensor is in the cloud's coordinates (the default (0, 0, 0) is a cloud in the sensor's
     own frame; give it for a scan moved into a map or world frame): the range of the
     thresholds and of ``range_noise``, and the ground around it defines level for the misfit's
@@ -256,7 +261,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,
-                       foot_height=foot_height)
+                       foot_height=foot_height, foot_lines=foot_lines)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots)

@@ -40,8 +40,9 @@ from .misfit import (
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
-           "label_heights", "mark_object_feet", "relabel_along_normal", "segment_points",
-           "sensor_ground_gradient", "sensor_in_cloud", "thresholds", "widen_labels"]
+           "label_heights", "mark_object_feet", "relabel_along_normal", "scan_line_spacing",
+           "segment_points", "sensor_ground_gradient", "sensor_in_cloud", "thresholds",
+           "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m.
 #: The floor covers the terrain's own relief inside a cell, which the surface of 0.5 m cells
@@ -68,6 +69,21 @@ FOOT_RISE = 0.1
 #: the height (m) above the terrain of an obstacle point that shows an object stands at a
 #: column (in it or one of its 8 neighbours)
 FOOT_OBJECT = 0.35
+#: on a scan of lines (a rotating lidar), the foot height grows with range to this many times
+#: the height between neighbouring scan lines on a vertical face there (range x tan of the
+#: angle between the lines, :func:`scan_line_spacing`), at most FOOT_CAP (m): a sparse lidar's
+#: lowest return on an object's face at range lies that far above the ground return before it
+#: (docs/algorithm.md, "Feet of objects", "... on a sparse lidar")
+FOOT_LINES = 3.0
+FOOT_CAP = 1.5
+#: :func:`scan_line_spacing`: the wedges' half-width (deg), the ranges they cover (m), the
+#: largest elevation gap within one scan line (deg), the fewest gaps for an estimate and the
+#: most points it reads (every k-th point of larger clouds)
+LINE_WEDGE_DEG = 0.5
+LINE_RANGES = (2.0, 40.0)
+LINE_SAME_DEG = 0.1
+LINE_MIN_GAPS = 20
+LINE_POINTS = 60_000
 
 
 #: a range-dependent automatic threshold (:func:`auto_range_coefficient`): the points at or
@@ -141,10 +157,10 @@ def thresholds(positions, *, threshold: float, range_coefficient: float = 0.0,
     return np.minimum(threshold + range_coefficient * r2, max(range_high, threshold))
 
 
-def _check(name: str, value, *, positive: bool) -> str | None:
+def _check(name: str, value, *, positive: bool, unit: str = "metres") -> str | None:
     if not (isinstance(value, (int, float)) and not isinstance(value, bool)
             and math.isfinite(value) and (value > 0 if positive else value >= 0)):
-        return f"{name} must be a finite number {'> 0' if positive else '>= 0'} (metres), got {value!r}"
+        return f"{name} must be a finite number {'> 0' if positive else '>= 0'} ({unit}), got {value!r}"
     return None
 
 
@@ -255,6 +271,31 @@ def sensor_in_cloud(positions, sensor_origin=(0.0, 0.0, 0.0), *,
                             float(radius), int(min_points)) >= min_points
 
 
+def scan_line_spacing(positions, sensor_origin=(0.0, 0.0, 0.0)) -> float:
+    """The angle (deg) between neighbouring scan lines of a rotating lidar seen from
+    ``sensor_origin``; 0.0 when the points show no lines (fewer than :data:`LINE_MIN_GAPS`
+    gaps).
+
+    A lidar's points along one azimuth lie on its beams, whatever they hit, so their
+    elevation angles from the sensor differ by multiples of the angle between neighbouring
+    lines. In 8 narrow wedges around the sensor (:data:`LINE_WEDGE_DEG` either side of the
+    x and y axes and the diagonals, ranges :data:`LINE_RANGES`; every k-th point of a
+    cloud of more than :data:`LINE_POINTS`) the sorted elevations' gaps larger than
+    :data:`LINE_SAME_DEG` (points of one line) are gathered; their median is the spacing
+    (lines without a return in a wedge widen some gaps, which the median ignores). A tilted
+    sensor's lines change elevation across a wedge, which can only lower the estimate.
+    Measured in docs/algorithm.md, "Feet of objects on a sparse lidar"."""
+    p = _positions(positions)
+    low, high = LINE_RANGES
+    gaps = _foot.scan_line_gaps(p, float(sensor_origin[0]), float(sensor_origin[1]),
+                                float(sensor_origin[2]), math.tan(math.radians(LINE_WEDGE_DEG)),
+                                float(low), float(high), math.radians(LINE_SAME_DEG),
+                                max(1, len(p) // LINE_POINTS))
+    if gaps.size < LINE_MIN_GAPS:
+        return 0.0
+    return math.degrees(float(np.median(gaps)))
+
+
 def _grade_from_sensor_ground(surface: TerrainSurface, p: np.ndarray, h: np.ndarray,
                               threshold: float, sensor_origin):
     """The misfit's ``grade`` callable: |grad S - g0| at (x, y), g0 the
@@ -273,7 +314,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                    below_threshold: float = 0.5, range_coefficient: float | None = None,
                    sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
                    along_normal: bool = True, foot_height: float = FOOT_HEIGHT,
-                   foot_cell: float = FOOT_CELL) -> tuple[np.ndarray, np.ndarray]:
+                   foot_cell: float = FOOT_CELL,
+                   foot_lines: float = FOOT_LINES) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -302,6 +344,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         points, an object at least 0.35 m high in the column or beside it) become OBSTACLE
         (:func:`mark_object_feet`); 0 = off.
     foot_cell: side of those columns (m).
+    foot_lines: on a scan of lines around ``sensor_origin`` (:func:`sensor_in_cloud` and
+        :func:`scan_line_spacing` > 0: a rotating lidar), the foot height grows with range
+        to this many times the height between neighbouring lines on a vertical face there
+        (at most :data:`FOOT_CAP`); 0 = ``foot_height`` at every range.
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -309,7 +355,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                             None if range_coefficient is None
                             else _check("range_coefficient", range_coefficient, positive=False),
                             _check("foot_height", foot_height, positive=False),
-                            _check("foot_cell", foot_cell, positive=True))
+                            _check("foot_cell", foot_cell, positive=True),
+                            _check("foot_lines", foot_lines, positive=False,
+                                   unit="scan-line gaps"))
                 if m]
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
         problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
@@ -354,15 +402,24 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                                     & (h > 0))
         _take_local_planes(labels, h, p, candidates, labels == TerrainLabel.TERRAIN,
                            misfit_reach(block), threshold)
-    if use_misfit and not sensor_in_cloud(p, sensor_origin):
+    in_cloud = None  # sensor_in_cloud, asked once when needed
+    if use_misfit:
+        in_cloud = sensor_in_cloud(p, sensor_origin)
+    if use_misfit and not in_cloud:
         # a top-down scan: every point up to MISFIT_HIGH above the surface and above its
         # threshold measured against the local plane of the terrain around it, within the
         # radius that holds PLANE_POINTS terrain points (docs/algorithm.md, "Local planes and
         # a finer layout on a top-down scan")
         _top_down_planes(labels, h, p, threshold, block)
     if foot_height > 0:
+        spacing = 0.0
+        if foot_lines > 0:
+            if in_cloud is None:
+                in_cloud = sensor_in_cloud(p, sensor_origin)
+            spacing = scan_line_spacing(p, sensor_origin) if in_cloud else 0.0
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
-                         noise_depth=below_threshold)
+                         noise_depth=below_threshold, line_spacing=spacing,
+                         foot_lines=foot_lines, sensor_origin=sensor_origin)
     return labels, h
 
 
@@ -401,10 +458,15 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                      fraction: float = FOOT_FRACTION, rise: float = FOOT_RISE,
                      object_height: float = FOOT_OBJECT,
                      noise_factor: float = AUTO_THRESHOLD_FACTOR,
-                     noise_cell: float = FOOT_NOISE_CELL, noise_depth: float = 0.5) -> int:
+                     noise_cell: float = FOOT_NOISE_CELL, noise_depth: float = 0.5,
+                     line_spacing: float = 0.0, foot_lines: float = FOOT_LINES,
+                     foot_cap: float = FOOT_CAP, sensor_origin=(0.0, 0.0, 0.0)) -> int:
     """In place: TERRAIN labels in the x/y columns (side ``cell``, m) that are the foot of an
     object become OBSTACLE; returns how many changed. A column is a foot when it holds OBSTACLE
-    points less than ``foot_height`` (m) above the terrain that
+    points less than the foot height above the terrain (``foot_height``, m; with
+    ``line_spacing`` > 0, ``foot_lines`` x r x tan(line_spacing) where that is higher, at most
+    ``foot_cap``: r the point's x/y range from ``sensor_origin``, ``line_spacing`` the angle
+    (deg) between neighbouring scan lines, :func:`scan_line_spacing`) that
 
     - stand out of the local noise: higher than ``noise_factor`` times the noise scale of the
       points between ``-noise_depth`` and 0 m in their ``noise_cell`` cell (from their mean
@@ -423,7 +485,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     ``foot_height`` or more above the terrain (a canopy, a car body above its ground clearance,
     a threshold at or above foot_height) change nothing; ``foot_height`` 0 changes nothing.
     ``labels`` (N,) uint8 as :func:`label_heights` writes them, ``heights`` (N,) above the
-    terrain.
+    terrain. The columns and the noise cells lie on fixed lattices (multiples of their side),
+    so a column's verdict does not depend on points outside it and its neighbours.
     """
     if labels.dtype != np.uint8 or labels.ndim != 1 or not labels.flags.writeable:
         raise InputError("mark_object_feet: labels must be a writeable (N,) uint8 array")
@@ -438,7 +501,16 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                             _check("object_height", object_height, positive=False),
                             _check("noise_factor", noise_factor, positive=False),
                             _check("noise_cell", noise_cell, positive=True),
-                            _check("noise_depth", noise_depth, positive=True)) if m]
+                            _check("noise_depth", noise_depth, positive=True),
+                            _check("line_spacing", line_spacing, positive=False,
+                                   unit="degrees"),
+                            _check("foot_lines", foot_lines, positive=False,
+                                   unit="scan-line gaps"),
+                            _check("foot_cap", foot_cap, positive=False)) if m]
+    if line_spacing >= 90:
+        problems.append(f"line_spacing must be below 90 degrees, got {line_spacing!r}")
+    if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
+        problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
     if problems:
         raise InputError("mark_object_feet: " + "; ".join(problems))
     if foot_height == 0:
@@ -447,7 +519,9 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
         p, np.ascontiguousarray(heights, dtype=np.float64), labels, float(cell),
         float(foot_height), float(fraction), float(rise), float(object_height),
         float(noise_cell), float(noise_factor),
-        float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE)))
+        float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE),
+        float(foot_lines) * math.tan(math.radians(line_spacing)), float(foot_cap),
+        float(sensor_origin[0]), float(sensor_origin[1])))
 
 
 def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,

@@ -284,10 +284,12 @@ def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=
 
 def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, rise,
                      object_height, noise_cell, noise_factor, noise_depth, terrain=1,
-                     obstacle=2):
-    """Object feet with dicts of cells: candidates are OBSTACLE points below ``foot_height``;
-    keys floor((x - x0) / side), floor((y - y0) / side) with x0/y0 the candidates' lowest
-    coordinates less one column. A candidate marks its column when its noise cell has fewer than 3 points with
+                     obstacle=2, foot_slope=0.0, foot_cap=0.0, sensor=(0.0, 0.0)):
+    """Object feet with dicts of cells: candidates are OBSTACLE points below their foot
+    height, ``foot_height`` or min(foot_slope * r, foot_cap) where higher (r: x/y range from
+    ``sensor``); keys floor((x - x0) / side), floor((y - y0) / side) with x0/y0 the multiple
+    of ``side`` one cell below the floor of the candidates' lowest coordinates (a lattice per
+    side). A candidate marks its column when its noise cell has fewer than 3 points with
     heights in (-noise_depth, 0) or it is higher than noise_factor * sqrt(pi / 2) * their mean
     depth; a marked column's TERRAIN points become OBSTACLE when marks >= fraction * (marks +
     its TERRAIN points), its highest mark is more than ``rise`` above the lowest of its marks
@@ -298,17 +300,26 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     def finite_xy(k):
         return math.isfinite(positions[k, 0]) and math.isfinite(positions[k, 1])
 
+    def limit(k):
+        if foot_slope > 0 and heights[k] >= foot_height:
+            reach = foot_slope * math.hypot(positions[k, 0] - sensor[0],
+                                            positions[k, 1] - sensor[1])
+            return max(foot_height, min(reach, foot_cap))
+        return foot_height
+
     candidates = [k for k in range(len(labels))
                   if labels[k] == obstacle and math.isfinite(heights[k])
-                  and heights[k] < foot_height and finite_xy(k)]
+                  and heights[k] < limit(k) and finite_xy(k)]
     if not candidates:
         return labels, 0
-    x0 = min(positions[k, 0] for k in candidates) - cell
-    y0 = min(positions[k, 1] for k in candidates) - cell
+    low_x = min(positions[k, 0] for k in candidates)
+    low_y = min(positions[k, 1] for k in candidates)
 
     def key(k, side):
-        return (math.floor((positions[k, 0] - x0) / side),
-                math.floor((positions[k, 1] - y0) / side))
+        x0 = (math.floor(low_x / side) - 1.0) * side
+        y0 = (math.floor(low_y / side) - 1.0) * side
+        return (math.floor((positions[k, 0] - x0) * (1.0 / side)),
+                math.floor((positions[k, 1] - y0) * (1.0 / side)))
 
     depths: dict = {}
     for k in range(len(labels)):

@@ -8,8 +8,10 @@ import pytest
 
 from o3d_terrain.api import segment_terrain
 from o3d_terrain.errors import InputError
-from o3d_terrain.segment import TerrainLabel, mark_object_feet, segment_points
+from o3d_terrain.segment import (TerrainLabel, mark_object_feet, scan_line_spacing,
+                                 segment_points)
 from o3d_terrain.spline import make_lsq_surface
+from o3d_terrain.synthetic import Obstacle, make_scene, sample_lidar, sample_stereo
 
 T, O, B, U = (int(v) for v in (TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,
                                TerrainLabel.BELOW_TERRAIN, TerrainLabel.UNKNOWN))
@@ -46,17 +48,24 @@ def test_kernel_matches_the_plain_reference():
                          -rng.uniform(0.5, 1.0, n)], np.nan)
     positions[::97, 0] = np.nan
     heights[::89] = np.nan
-    cases = ((0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5), (0.3, 0.8, 0.0, 0.0, 0.0, 0.7, 0.5),
-             (0.07, 0.4, 0.5, 0.25, 1.1, 2.0, 0.0), (0.5, 1.2, 0.25, 0.6, 0.2, 1.0, 1.0))
+    cases = ((0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 0.0), (0.3, 0.8, 0.0, 0.0, 0.0, 0.7, 0.5, 0.0),
+             (0.07, 0.4, 0.5, 0.25, 1.1, 2.0, 0.0, 0.0), (0.5, 1.2, 0.25, 0.6, 0.2, 1.0, 1.0, 0.0),
+             (0.15, 0.3, 0.3, 0.1, 0.35, 1.0, 3.5, 2.0))  # the last grows with range
+    sensor = (0.5, 4.5e6 - 1.0, 0.0)
     counts = []
-    for cell, foot_height, fraction, rise, object_height, noise_cell, noise_factor in cases:
+    for cell, foot_height, fraction, rise, object_height, noise_cell, noise_factor, \
+            spacing in cases:
+        slope = 3.0 * np.tan(np.radians(spacing))
         expected, count = naive.mark_object_feet(labels, heights, positions, foot_height,
                                                  cell, fraction, rise, object_height,
-                                                 noise_cell, noise_factor, 0.5, T, O)
+                                                 noise_cell, noise_factor, 0.5, T, O, slope,
+                                                 0.9, sensor[:2])
         got = labels.copy()
         changed = mark_object_feet(got, heights, positions, foot_height=foot_height, cell=cell,
                                    fraction=fraction, rise=rise, object_height=object_height,
-                                   noise_cell=noise_cell, noise_factor=noise_factor)
+                                   noise_cell=noise_cell, noise_factor=noise_factor,
+                                   line_spacing=spacing, foot_lines=3.0, foot_cap=0.9,
+                                   sensor_origin=sensor)
         np.testing.assert_array_equal(got, expected)
         assert changed == count
         counts.append(count)
@@ -74,7 +83,9 @@ def test_bush_base_becomes_obstacle_and_ground_beside_it_stays_terrain():
     bush_base = (kind == 1) & (h <= 0.2)
     assert bush_base.sum() > 300
     assert (plain[bush_base] == T).all()  # height alone calls them terrain
-    assert (labels[bush_base] == O).all()  # the column with the bush above says obstacle
+    # the column with the bush above says obstacle; the columns of the fixed lattice that
+    # straddle the bush's edge hold more ground than bush (7 of 606 points there)
+    assert (labels[bush_base] == O).mean() > 0.97
     ground = kind == 0
     # ground under the bush's footprint goes with it; the rest of the ground is untouched
     under = ground & (positions[:, 0] >= 10) & (positions[:, 0] < 11) & \
@@ -118,11 +129,10 @@ def test_a_column_that_rises_no_more_than_terrain_is_not_a_foot():
     columns with ground points just below it: a column must reach more than 0.1 m above its
     lowest point to be the foot of an object."""
     surface = flat_surface()
-    # columns are counted from the lowest x and y of the obstacle points below foot_height
-    # (5.08, 0.06): each group lies inside one 0.15 m column
-    column = [[5.10, 0.08, 0.03], [5.12, 0.10, 0.06], [5.08, 0.06, 0.11]]  # a 0.08 m rise
-    foot = [[8.10, 0.08, 0.03], [8.12, 0.10, 0.06], [8.14, 0.12, 0.25]]  # a post's low part
-    post = [[8.13, 0.11, 1.0]]  # the post above it
+    # the columns lie on a lattice of multiples of 0.15 m: each group lies inside one column
+    column = [[5.18, 0.08, 0.03], [5.20, 0.10, 0.06], [5.16, 0.06, 0.11]]  # a 0.08 m rise
+    foot = [[8.16, 0.08, 0.03], [8.18, 0.10, 0.06], [8.20, 0.12, 0.25]]  # a post's low part
+    post = [[8.19, 0.11, 1.0]]  # the post above it
     positions = np.array(column + foot + post, float)
     labels, _ = segment_points(surface, positions, threshold=0.1)
     assert labels.tolist() == [T, T, O, O, O, O, O]
@@ -132,3 +142,70 @@ def test_a_column_that_rises_no_more_than_terrain_is_not_a_foot():
     # ground or the upper tail of a noisy sensor's ground takes no ground along
     labels, _ = segment_points(surface, positions[:-1], threshold=0.1)
     assert labels.tolist() == [T, T, O, T, T, O]
+
+
+def test_columns_lie_on_a_fixed_lattice():
+    """A column's verdict depends on its own points and its neighbours', not on where the
+    other obstacle points lie: a low obstacle point far away (which moved the columns when
+    they were counted from the lowest candidate) changes nothing."""
+    surface = flat_surface()
+    foot = [[10.07, 0.08, 0.05], [10.17, 0.10, 0.04], [10.12, 0.09, 0.30]]  # one column
+    post = [[10.12, 0.09, 1.0]]
+    positions = np.array(foot + post, float)
+    labels, _ = segment_points(surface, positions, threshold=0.1, foot_lines=0)
+    assert labels.tolist() == [O, O, O, O]
+    far = np.array([[3.03, 0.08, 0.3]])  # with columns from it, 10.08 would split the foot
+    labels, _ = segment_points(surface, np.vstack([positions, far]), threshold=0.1,
+                               foot_lines=0)
+    assert labels.tolist() == [O, O, O, O, O]
+
+
+def test_scan_line_spacing_of_lidars_and_a_stereo_camera():
+    scene = make_scene("hills", seed=0)
+    for beams, fov, expected in ((16, (-15.0, 15.0), 2.0), (64, (-30.0, 10.0), 40 / 63)):
+        cloud = sample_lidar(scene, beams=beams, fov_deg=fov, azimuth_steps=1800, seed=0)
+        p = cloud.positions
+        assert scan_line_spacing(p) == pytest.approx(expected, rel=0.02)
+        # tilted 10 degrees: each line's elevation changes across a wedge, which can only
+        # lower the estimate (a smaller foot height, as on a denser lidar)
+        c, s = np.cos(np.radians(10)), np.sin(np.radians(10))
+        tilted = p @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T
+        assert 0.75 * expected < scan_line_spacing(tilted) < 1.02 * expected
+        # seen from a point that is not the sensor, no lines: far away, nothing in the wedges
+        assert scan_line_spacing(p, (500.0, 0.0, 0.0)) == 0.0
+    stereo = sample_stereo(scene, seed=0).positions
+    assert scan_line_spacing(stereo[np.isfinite(stereo).all(axis=1)]) < 0.3  # pixel rows
+    assert scan_line_spacing(np.zeros((0, 3))) == 0.0
+    nan = sample_lidar(scene, beams=16, fov_deg=(-15.0, 15.0), seed=0).positions.copy()
+    nan[::3] = np.nan
+    assert scan_line_spacing(nan) == pytest.approx(2.0, rel=0.02)
+
+
+def test_feet_grow_with_range_on_a_sparse_lidar():
+    """A 16-line lidar (2 degrees between lines) sees boxes 18-30 m out: its lowest return on a
+    box lies in the terrain threshold and the next line hits the box 0.6-1 m higher, above
+    the fixed 0.5 m foot height. With the foot height grown to 3 line gaps (at most 1.5 m)
+    those low returns become obstacle; no ground point is lost either way."""
+    spots = ((18, 0.3), (22, 1.2), (26, 2.0), (30, 2.9), (24, 3.8), (20, 4.6), (28, 5.5))
+    boxes = tuple(Obstacle("box", (r * np.cos(a), r * np.sin(a)), (0.6, 3.0), 1.2,
+                           float(np.degrees(a))) for r, a in spots)
+    scene = make_scene("flat", seed=0, obstacles=False,
+                       region=(-40, 40, -40, 40)).with_obstacles(boxes)
+    cloud = sample_lidar(scene, beams=16, fov_deg=(-15.0, 15.0), azimuth_steps=1800, seed=0)
+    p = cloud.positions
+    surface, _ = segment_terrain(p)
+    fixed, h = segment_points(surface, p, threshold=None, foot_lines=0)
+    grown, _ = segment_points(surface, p, threshold=None)
+    low = cloud.is_obstacle & (h < 0.2)
+    assert low.sum() > 50
+    assert (fixed[low] == T).all()  # height alone and the fixed foot height miss them
+    assert (grown[low] == O).mean() > 0.5  # measured 40 of 72
+    ground = ~cloud.is_obstacle
+    assert (fixed[ground] == T).all() and (grown[ground] == T).all()
+    # segment_terrain passes the option on
+    _, inliers = segment_terrain(p, foot_lines=0)
+    assert np.isin(np.flatnonzero(low), inliers).all()
+    _, inliers = segment_terrain(p)
+    assert np.isin(np.flatnonzero(low), inliers).mean() < 0.5
+    with pytest.raises(InputError, match="foot_lines"):
+        segment_terrain(p, foot_lines=-1)

@@ -71,15 +71,38 @@ def _screen_bit(key):
 
 
 @numba.njit(cache=True)
-def _candidate(k, positions, heights, labels, obstacle, foot_height):
+def _candidate(k, positions, heights, labels, obstacle, foot_height, foot_slope, foot_cap,
+               sensor_x, sensor_y):
+    """Whether point k is a mark candidate: an OBSTACLE point with a finite position less than
+    its foot height above the terrain: ``foot_height``, or ``foot_slope`` times its x/y range
+    from the sensor where that is higher (at most ``foot_cap``)."""
     h = heights[k]
-    return (labels[k] == obstacle and h < foot_height and math.isfinite(h)
-            and math.isfinite(positions[k, 0]) and math.isfinite(positions[k, 1]))
+    if labels[k] != obstacle or not math.isfinite(h):
+        return False
+    if h >= foot_height:
+        # h < min(foot_slope * r, foot_cap), squared (h > 0): most obstacle points stand
+        # higher than the cap and need no range
+        if not (foot_slope > 0.0 and h < foot_cap):
+            return False
+        dx = positions[k, 0] - sensor_x
+        dy = positions[k, 1] - sensor_y
+        if not h * h < foot_slope * foot_slope * (dx * dx + dy * dy):
+            return False
+    return math.isfinite(positions[k, 0]) and math.isfinite(positions[k, 1])
+
+
+@numba.njit(cache=True)
+def _lattice_origin(low, side):
+    """The origin of the keys of cells of ``side`` below ``low`` (the candidates' lowest x or
+    y): a multiple of ``side`` one cell below it, so the cells lie on a fixed lattice whatever
+    the candidates are (and the candidates' cells all have their 8 neighbours)."""
+    return (math.floor(low / side) - 1.0) * side
 
 
 @numba.njit(cache=True)
 def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, rise,
-                     object_height, noise_cell, noise_factor, noise_depth, terrain, obstacle):
+                     object_height, noise_cell, noise_factor, noise_depth, terrain, obstacle,
+                     foot_slope=0.0, foot_cap=0.0, sensor_x=0.0, sensor_y=0.0):
     """In place: the ``terrain`` labels of the foot columns (module docstring) become
     ``obstacle``; returns how many changed. Noise cells take the points with heights in
     (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
@@ -92,8 +115,10 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     the tall points are looked up in the small set of those columns' 3 x 3 neighbourhoods
     instead of all being inserted into a set of their own."""
     n = heights.shape[0]
-    # candidates: obstacle points below foot_height; the keys' origin is their lowest x, y
-    # (and the obstacle points at least object_height up, for the object test)
+    # candidates: obstacle points below their foot height (``foot_height``, or
+    # ``foot_slope`` times their range up to ``foot_cap`` where higher); the keys' lattices
+    # start below their lowest x, y (and the obstacle points at least object_height up, for
+    # the object test)
     candidates = np.empty(n, np.int32)  # their indices: the later passes read only them
     tall_points = np.empty(n, np.int32)
     count = 0
@@ -104,15 +129,18 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
         if labels[k] == obstacle and heights[k] >= object_height:
             tall_points[tall] = k
             tall += 1
-        if _candidate(k, positions, heights, labels, obstacle, foot_height):
+        if _candidate(k, positions, heights, labels, obstacle, foot_height, foot_slope,
+                      foot_cap, sensor_x, sensor_y):
             candidates[count] = k
             count += 1
             x0 = min(x0, positions[k, 0])
             y0 = min(y0, positions[k, 1])
     if count == 0:
         return 0
-    x0 -= cell  # one column of margin: the candidates' columns all have their 8 neighbours
-    y0 -= cell
+    cx0 = _lattice_origin(x0, cell)
+    cy0 = _lattice_origin(y0, cell)
+    nx0 = _lattice_origin(x0, noise_cell)
+    ny0 = _lattice_origin(y0, noise_cell)
     inv_cell = 1.0 / cell
     inv_noise = 1.0 / noise_cell
     # the noise cells of the candidates, then the depths of the points below the surface there
@@ -120,14 +148,14 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     cell_slots = np.empty(count, np.int64)
     for c in range(count):
         k = candidates[c]
-        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_noise)
+        key = _key(positions[k, 0], positions[k, 1], nx0, ny0, inv_noise)
         cell_slots[c] = _find(cells, cell_shift, cell_mask, key, True) if key >= 0 else -1
     depth_sum = np.zeros(cells.size)
     depth_count = np.zeros(cells.size, np.int64)
     for k in range(n):
         h = heights[k]
         if h < 0.0 and h > -noise_depth:
-            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_noise)
+            key = _key(positions[k, 0], positions[k, 1], nx0, ny0, inv_noise)
             if key >= 0:
                 s = _find(cells, cell_shift, cell_mask, key, False)
                 if s >= 0:
@@ -148,7 +176,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
         if s >= 0 and depth_count[s] >= 3 and \
                 heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
             continue
-        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+        key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
         if key >= 0:
             s = _find(columns, shift, mask, key, True)
             word, bit = _screen_bit(key)
@@ -162,7 +190,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     hits = 0
     for k in range(n):
         if labels[k] == terrain:
-            key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+            key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
             if key >= 0:
                 word, bit = _screen_bit(key)
                 if screen[word] & bit == 0:
@@ -202,7 +230,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     standing = np.zeros(around.size, np.bool_)  # a tall point's column
     for c in range(tall):
         k = tall_points[c]
-        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_cell)
+        key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
         if key >= 0:
             s = _find(around, around_shift, around_mask, key, False)
             if s >= 0:
@@ -226,3 +254,74 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             labels[hit_points[c]] = obstacle
             changed += 1
     return changed
+
+
+@numba.njit(cache=True)
+def _wedge(dx, dy, tan_wedge):
+    """Which of 8 narrow wedges around the sensor holds the x/y offset (dx, dy): 0-3 along
+    +x, -x, +y, -y, 4-7 along the diagonals (+x+y, -x-y, +x-y, -x+y); -1 for none. A wedge is
+    the offsets within atan(tan_wedge) of its direction."""
+    ax = abs(dx)
+    ay = abs(dy)
+    if ay < tan_wedge * ax:
+        return 0 if dx > 0.0 else 1
+    if ax < tan_wedge * ay:
+        return 2 if dy > 0.0 else 3
+    u = dx + dy  # the diagonals, scaled by sqrt(2) (the ratio is what counts)
+    v = dx - dy
+    if abs(v) < tan_wedge * abs(u):
+        return 4 if u > 0.0 else 5
+    if abs(u) < tan_wedge * abs(v):
+        return 6 if v > 0.0 else 7
+    return -1
+
+
+@numba.njit(cache=True)
+def scan_line_gaps(positions, sensor_x, sensor_y, sensor_z, tan_wedge, r_min, r_max,
+                   min_gap, step):
+    """The gaps (rad) between neighbouring elevation angles, seen from the sensor, of every
+    ``step``-th point in 8 narrow wedges around it (:func:`_wedge`) at x/y ranges in [r_min, r_max];
+    gaps of at most ``min_gap`` (points of one scan line, whose elevation is its beam's) are
+    left out. A rotating lidar's points of one azimuth lie on its beams, so the gaps are
+    multiples of the angle between neighbouring scan lines; a camera's are a pixel's."""
+    n = positions.shape[0]
+    chosen = np.empty(n, np.int32)  # the points in a wedge, and their wedges
+    wedge_of = np.empty(n, np.int8)
+    counts = np.zeros(9, np.int64)
+    m = 0
+    low2 = r_min * r_min
+    high2 = r_max * r_max
+    for k in range(0, n, step):
+        dx = positions[k, 0] - sensor_x
+        dy = positions[k, 1] - sensor_y
+        w = _wedge(dx, dy, tan_wedge)  # -1 for NaN: no wedge
+        if w < 0:
+            continue
+        r2 = dx * dx + dy * dy
+        if r2 < low2 or r2 > high2 or not math.isfinite(positions[k, 2]):
+            continue
+        chosen[m] = k
+        wedge_of[m] = w
+        counts[w + 1] += 1
+        m += 1
+    for w in range(8):
+        counts[w + 1] += counts[w]
+    elevation = np.empty(m)
+    filled = counts[:8].copy()
+    for i in range(m):
+        k = chosen[i]
+        w = wedge_of[i]
+        elevation[filled[w]] = math.atan2(positions[k, 2] - sensor_z,
+                                          math.hypot(positions[k, 0] - sensor_x,
+                                                     positions[k, 1] - sensor_y))
+        filled[w] += 1
+    gaps = np.empty(max(m, 1))
+    g = 0
+    for w in range(8):
+        angles = np.sort(elevation[counts[w]:counts[w + 1]])
+        for i in range(1, angles.shape[0]):
+            d = angles[i] - angles[i - 1]
+            if d > min_gap:
+                gaps[g] = d
+                g += 1
+    return gaps[:g]

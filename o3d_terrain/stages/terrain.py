@@ -11,7 +11,8 @@ from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import refine_surface
-from ..segment import FOOT_CELL, FOOT_HEIGHT, TerrainLabel, segment_points, sensor_in_cloud
+from ..segment import (FOOT_CELL, FOOT_HEIGHT, FOOT_LINES, TerrainLabel, segment_points,
+                       sensor_in_cloud)
 from ..terrain import (
     KNOT_PLACEMENTS,
     MAX_SLOPE_DEG,
@@ -218,6 +219,9 @@ class Segmenter(Stage):
     for a good part (30 %) OBSTACLE points less than foot_height above the terrain, standing
     out of the local noise, next to an object at least 0.35 m high, are the base of that
     object (a bush, a wall, a wheel) and become OBSTACLE (o3d_terrain.segment.mark_object_feet).
+    On a rotating lidar's scan the foot height grows with range to foot_lines times the
+    height between its neighbouring scan lines on a vertical face (at most 1.5 m), where the
+    lowest return on an object lies that far above the ground return before it.
     """
 
     reads = ("surface",)
@@ -259,6 +263,14 @@ class Segmenter(Stage):
     )
     foot_cell: float = option(FOOT_CELL, unit="m", rule=POSITIVE,
                               help="side of the x/y columns of foot_height")
+    foot_lines: float = option(
+        FOOT_LINES, rule=NON_NEGATIVE,
+        help="on a rotating lidar's scan around sensor_origin, foot_height grows with range r "
+             "to this many times r * tan(angle between neighbouring scan lines, found from "
+             "the points), at most 1.5 m: a sparse lidar's lowest return on an object at "
+             "range lies that far above the ground; 0 = foot_height at every range "
+             "(o3d_terrain.segment.scan_line_spacing)",
+    )
 
     def run(self, frame: Frame) -> Frame:
         labels, heights = self.label(frame.product("surface"), frame.positions)
@@ -280,4 +292,4 @@ class Segmenter(Stage):
                               sensor_origin=self.sensor_origin,
                               misfit=self.misfit_threshold, along_normal=self.along_normal,
                               foot_height=self.foot_height,
-                              foot_cell=self.foot_cell)
+                              foot_cell=self.foot_cell, foot_lines=self.foot_lines)
