@@ -76,6 +76,12 @@ FOOT_OBJECT = 0.35
 #: (docs/algorithm.md, "Feet of objects", "... on a sparse lidar")
 FOOT_LINES = 3.0
 FOOT_CAP = 1.5
+#: on such a scan whose noise does not grow with range (a lidar's), TERRAIN points within
+#: FOOT_BEHIND (m, x/y) of a mark beside an object and at least FOOT_BEHIND_MARGIN (m) farther
+#: from the sensor than it lie behind the object's low part, where the sensor sees no ground
+#: (docs/algorithm.md, "Ground behind the low part of an object")
+FOOT_BEHIND = 0.2
+FOOT_BEHIND_MARGIN = 0.13
 #: :func:`scan_line_spacing`: the wedges' half-width (deg), the ranges they cover (m), the
 #: largest elevation gap within one scan line (deg), the fewest gaps for an estimate and the
 #: most points it reads (every k-th point of larger clouds)
@@ -314,8 +320,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                    below_threshold: float = 0.5, range_coefficient: float | None = None,
                    sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
                    along_normal: bool = True, foot_height: float = FOOT_HEIGHT,
-                   foot_cell: float = FOOT_CELL,
-                   foot_lines: float = FOOT_LINES) -> tuple[np.ndarray, np.ndarray]:
+                   foot_cell: float = FOOT_CELL, foot_lines: float = FOOT_LINES,
+                   foot_behind: float = FOOT_BEHIND) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -348,6 +354,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         :func:`scan_line_spacing` > 0: a rotating lidar), the foot height grows with range
         to this many times the height between neighbouring lines on a vertical face there
         (at most :data:`FOOT_CAP`); 0 = ``foot_height`` at every range.
+    foot_behind: on such a scan with a range coefficient of 0 (a lidar's noise), TERRAIN
+        points within this distance (m, x/y) of a foot's mark (an OBSTACLE point below the
+        foot height, out of the noise, beside an object) and at least
+        :data:`FOOT_BEHIND_MARGIN` farther from the sensor than it become OBSTACLE; 0 = off.
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -357,7 +367,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                             _check("foot_height", foot_height, positive=False),
                             _check("foot_cell", foot_cell, positive=True),
                             _check("foot_lines", foot_lines, positive=False,
-                                   unit="scan-line gaps"))
+                                   unit="scan-line gaps"),
+                            _check("foot_behind", foot_behind, positive=False))
                 if m]
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
         problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
@@ -367,6 +378,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     h = heights_above_terrain(surface, p)
     local = None
     automatic_range = range_coefficient is None
+    measured_range = automatic_range and threshold is None  # the data's range growth is known
     range_coefficient = 0.0 if automatic_range else range_coefficient
     range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
     use_misfit = threshold is None and misfit and isinstance(surface, TerrainSurface)
@@ -413,13 +425,22 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         _top_down_planes(labels, h, p, threshold, block)
     if foot_height > 0:
         spacing = 0.0
-        if foot_lines > 0:
+        if foot_lines > 0 or foot_behind > 0:
             if in_cloud is None:
                 in_cloud = sensor_in_cloud(p, sensor_origin)
             spacing = scan_line_spacing(p, sensor_origin) if in_cloud else 0.0
+        # behind the marks: on a lidar's scan (lines, and noise that does not grow with range:
+        # a stereo pair's depth noise would put ground in front of an object behind it),
+        # asked of the data also when the caller set the threshold or its range term
+        behind = 0.0
+        if foot_behind > 0 and spacing > 0 and range_coefficient == 0 and (
+                measured_range or auto_range_coefficient(p, h, auto_threshold(h),
+                                                         sensor_origin) == 0):
+            behind = foot_behind
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold, line_spacing=spacing,
-                         foot_lines=foot_lines, sensor_origin=sensor_origin)
+                         foot_lines=foot_lines, sensor_origin=sensor_origin,
+                         behind_radius=behind)
     return labels, h
 
 
@@ -460,7 +481,9 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                      noise_factor: float = AUTO_THRESHOLD_FACTOR,
                      noise_cell: float = FOOT_NOISE_CELL, noise_depth: float = 0.5,
                      line_spacing: float = 0.0, foot_lines: float = FOOT_LINES,
-                     foot_cap: float = FOOT_CAP, sensor_origin=(0.0, 0.0, 0.0)) -> int:
+                     foot_cap: float = FOOT_CAP, sensor_origin=(0.0, 0.0, 0.0),
+                     behind_radius: float = 0.0,
+                     behind_margin: float = FOOT_BEHIND_MARGIN) -> int:
     """In place: TERRAIN labels in the x/y columns (side ``cell``, m) that are the foot of an
     object become OBSTACLE; returns how many changed. A column is a foot when it holds OBSTACLE
     points less than the foot height above the terrain (``foot_height``, m; with
@@ -487,6 +510,13 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     ``labels`` (N,) uint8 as :func:`label_heights` writes them, ``heights`` (N,) above the
     terrain. The columns and the noise cells lie on fixed lattices (multiples of their side),
     so a column's verdict does not depend on points outside it and its neighbours.
+
+    With ``behind_radius`` > 0 (m), then the TERRAIN points within that x/y distance of a
+    mark (an OBSTACLE point below the foot height that stands out of the noise) whose column
+    or one of its 8 neighbours holds an OBSTACLE point at least ``object_height`` up, and at
+    least ``behind_margin`` (m) farther from ``sensor_origin`` (x/y range) than the mark,
+    become OBSTACLE: behind the low part of an object, as the sensor sees it, it hides the
+    ground (the ground returns there are the object's base, or ground under its overhang).
     """
     if labels.dtype != np.uint8 or labels.ndim != 1 or not labels.flags.writeable:
         raise InputError("mark_object_feet: labels must be a writeable (N,) uint8 array")
@@ -506,7 +536,9 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                                    unit="degrees"),
                             _check("foot_lines", foot_lines, positive=False,
                                    unit="scan-line gaps"),
-                            _check("foot_cap", foot_cap, positive=False)) if m]
+                            _check("foot_cap", foot_cap, positive=False),
+                            _check("behind_radius", behind_radius, positive=False),
+                            _check("behind_margin", behind_margin, positive=False)) if m]
     if line_spacing >= 90:
         problems.append(f"line_spacing must be below 90 degrees, got {line_spacing!r}")
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
@@ -521,7 +553,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
         float(noise_cell), float(noise_factor),
         float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE),
         float(foot_lines) * math.tan(math.radians(line_spacing)), float(foot_cap),
-        float(sensor_origin[0]), float(sensor_origin[1])))
+        float(sensor_origin[0]), float(sensor_origin[1]), float(behind_radius),
+        float(behind_margin)))
 
 
 def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,

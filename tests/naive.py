@@ -284,7 +284,8 @@ def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=
 
 def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, rise,
                      object_height, noise_cell, noise_factor, noise_depth, terrain=1,
-                     obstacle=2, foot_slope=0.0, foot_cap=0.0, sensor=(0.0, 0.0)):
+                     obstacle=2, foot_slope=0.0, foot_cap=0.0, sensor=(0.0, 0.0),
+                     behind_radius=0.0, behind_margin=0.0):
     """Object feet with dicts of cells: candidates are OBSTACLE points below their foot
     height, ``foot_height`` or min(foot_slope * r, foot_cap) where higher (r: x/y range from
     ``sensor``); keys floor((x - x0) / side), floor((y - y0) / side) with x0/y0 the multiple
@@ -294,7 +295,10 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     depth; a marked column's TERRAIN points become OBSTACLE when marks >= fraction * (marks +
     its TERRAIN points), its highest mark is more than ``rise`` above the lowest of its marks
     and TERRAIN points, and it or one of its 8 neighbours holds an OBSTACLE point at least
-    ``object_height`` up. Returns the new labels and how many changed."""
+    ``object_height`` up. Then, with ``behind_radius`` > 0, the TERRAIN points within
+    ``behind_radius`` (x/y) of a mark whose column or one of its 8 neighbours holds such an
+    obstacle point, and at least ``behind_margin`` farther from ``sensor`` (x/y range),
+    become OBSTACLE. Returns the new labels and how many changed."""
     labels = labels.copy()
 
     def finite_xy(k):
@@ -327,10 +331,12 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
             depths.setdefault(key(k, noise_cell), []).append(-heights[k])
     marks: dict = {}
     column_heights: dict = {}  # the heights of each marked column's marks and TERRAIN points
+    mark_points = []
     for k in candidates:
         d = depths.get(key(k, noise_cell), [])
         if len(d) >= 3 and heights[k] <= noise_factor * math.sqrt(math.pi / 2) * np.mean(d):
             continue
+        mark_points.append(k)
         marks[key(k, cell)] = marks.get(key(k, cell), 0) + 1
         column_heights.setdefault(key(k, cell), {"marks": [], "all": []})
         column_heights[key(k, cell)]["marks"].append(heights[k])
@@ -355,6 +361,23 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
                 - min(column_heights[key(k, cell)]["all"]) > rise:
             labels[k] = obstacle
             changed += 1
+    if behind_radius > 0:
+        def near_object(k):
+            ix, iy = key(k, cell)
+            return any((ix + dx, iy + dy) in objects for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+
+        def rng(k):
+            return math.hypot(positions[k, 0] - sensor[0], positions[k, 1] - sensor[1])
+
+        shown = [j for j in mark_points if near_object(j)]
+        for k in range(len(labels)):
+            if labels[k] != terrain or not finite_xy(k):
+                continue
+            if any(math.hypot(positions[j, 0] - positions[k, 0],
+                              positions[j, 1] - positions[k, 1]) <= behind_radius
+                   and rng(j) <= rng(k) - behind_margin for j in shown):
+                labels[k] = obstacle
+                changed += 1
     return labels, changed
 
 

@@ -11,7 +11,8 @@ from o3d_terrain.errors import InputError
 from o3d_terrain.segment import (TerrainLabel, mark_object_feet, scan_line_spacing,
                                  segment_points)
 from o3d_terrain.spline import make_lsq_surface
-from o3d_terrain.synthetic import Obstacle, make_scene, sample_lidar, sample_stereo
+from o3d_terrain.synthetic import (Obstacle, default_obstacles, make_scene, sample_lidar,
+                                   sample_stereo)
 
 T, O, B, U = (int(v) for v in (TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,
                                TerrainLabel.BELOW_TERRAIN, TerrainLabel.UNKNOWN))
@@ -50,22 +51,26 @@ def test_kernel_matches_the_plain_reference():
     heights[::89] = np.nan
     cases = ((0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 0.0), (0.3, 0.8, 0.0, 0.0, 0.0, 0.7, 0.5, 0.0),
              (0.07, 0.4, 0.5, 0.25, 1.1, 2.0, 0.0, 0.0), (0.5, 1.2, 0.25, 0.6, 0.2, 1.0, 1.0, 0.0),
-             (0.15, 0.3, 0.3, 0.1, 0.35, 1.0, 3.5, 2.0))  # the last grows with range
+             (0.15, 0.3, 0.3, 0.1, 0.35, 1.0, 3.5, 2.0),  # grows with range
+             (0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 2.0, 0.2, 0.13),  # and behind the marks
+             (0.07, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 0.0, 0.3, 0.05))
     sensor = (0.5, 4.5e6 - 1.0, 0.0)
     counts = []
     for cell, foot_height, fraction, rise, object_height, noise_cell, noise_factor, \
-            spacing in cases:
+            spacing, *behind in cases:
+        radius, margin = behind or (0.0, 0.0)
         slope = 3.0 * np.tan(np.radians(spacing))
         expected, count = naive.mark_object_feet(labels, heights, positions, foot_height,
                                                  cell, fraction, rise, object_height,
                                                  noise_cell, noise_factor, 0.5, T, O, slope,
-                                                 0.9, sensor[:2])
+                                                 0.9, sensor[:2], radius, margin)
         got = labels.copy()
         changed = mark_object_feet(got, heights, positions, foot_height=foot_height, cell=cell,
                                    fraction=fraction, rise=rise, object_height=object_height,
                                    noise_cell=noise_cell, noise_factor=noise_factor,
                                    line_spacing=spacing, foot_lines=3.0, foot_cap=0.9,
-                                   sensor_origin=sensor)
+                                   sensor_origin=sensor, behind_radius=radius,
+                                   behind_margin=margin)
         np.testing.assert_array_equal(got, expected)
         assert changed == count
         counts.append(count)
@@ -209,3 +214,46 @@ def test_feet_grow_with_range_on_a_sparse_lidar():
     assert np.isin(np.flatnonzero(low), inliers).mean() < 0.5
     with pytest.raises(InputError, match="foot_lines"):
         segment_terrain(p, foot_lines=-1)
+
+
+def test_ground_behind_the_low_part_of_an_object_goes_with_it():
+    """Seen from a sensor at the origin, terrain-level returns just behind the low part of a
+    bush (within 0.2 m and 0.13 m farther) are its base; those in front of it stay terrain,
+    and so do those behind low points with no object beside them."""
+    surface = flat_surface()
+    low = [[12.02, 0.05, 0.3], [12.05, 0.07, 0.4]]  # the bush's low part: marks
+    top = [[12.04, 0.06, 0.9]]  # the bush above them: an object stands there
+    behind = [[12.2, 0.06, 0.02], [12.22, 0.1, 0.03]]  # farther, in the next column
+    front = [[11.9, 0.06, 0.02], [11.88, 0.02, 0.01]]  # nearer the sensor
+    step = [[20.02, 0.05, 0.3], [20.2, 0.06, 0.02]]  # a low step, nothing above it
+    positions = np.array(low + top + behind + front + step, float)
+    labels, h = segment_points(surface, positions, threshold=0.1, foot_height=0)
+    assert labels.tolist() == [O, O, O, T, T, T, T, O, T]
+    got = labels.copy()
+    assert mark_object_feet(got, h, positions, behind_radius=0.2) == 2
+    assert got.tolist() == [O, O, O, O, O, T, T, O, T]
+    got = labels.copy()  # off by default, and a margin larger than the step keeps them
+    assert mark_object_feet(got, h, positions) == 0
+    assert mark_object_feet(got, h, positions, behind_radius=0.2, behind_margin=0.2) == 0
+    with pytest.raises(InputError, match="behind_radius"):
+        mark_object_feet(labels.copy(), h, positions, behind_radius=-0.1)
+
+
+def test_behind_the_marks_only_on_a_lidar_scan():
+    """A stereo pair's depth noise grows with range (its range coefficient is not 0), so a
+    ground point in front of an object can appear behind it: segment_points leaves the rule
+    off there."""
+    scene = make_scene("ditch_berm", seed=0).with_obstacles(default_obstacles(0))
+    stereo = sample_stereo(scene, seed=0).positions
+    stereo = stereo[np.isfinite(stereo).all(axis=1)]
+    surface, _ = segment_terrain(stereo)
+    for threshold in (None, 0.2):  # a fixed threshold: the data are asked all the same
+        off, _ = segment_points(surface, stereo, threshold=threshold, foot_behind=0)
+        on, _ = segment_points(surface, stereo, threshold=threshold)
+        np.testing.assert_array_equal(on, off)
+    # the rule itself would take ground there (the objects' low parts are marks)
+    labels, h = segment_points(surface, stereo, threshold=0.2, foot_height=0)
+    assert mark_object_feet(labels.copy(), h, stereo, behind_radius=0.2) > \
+        mark_object_feet(labels.copy(), h, stereo)
+    with pytest.raises(InputError, match="foot_behind"):
+        segment_points(surface, stereo, foot_behind=-1)

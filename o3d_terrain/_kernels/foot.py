@@ -71,6 +71,14 @@ def _screen_bit(key):
 
 
 @numba.njit(cache=True)
+def _wide_screen_bit(key):
+    """(word, bit mask) of ``key`` in a one-bit-per-hash screen of 16,384 uint64 words (128 KB):
+    the top 20 bits of its Fibonacci hash."""
+    b = (np.uint64(key) * _MIX) >> np.uint64(44)
+    return b >> np.uint64(6), np.uint64(1) << (b & np.uint64(63))
+
+
+@numba.njit(cache=True)
 def _candidate(k, positions, heights, labels, obstacle, foot_height, foot_slope, foot_cap,
                sensor_x, sensor_y):
     """Whether point k is a mark candidate: an OBSTACLE point with a finite position less than
@@ -102,7 +110,8 @@ def _lattice_origin(low, side):
 @numba.njit(cache=True)
 def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, rise,
                      object_height, noise_cell, noise_factor, noise_depth, terrain, obstacle,
-                     foot_slope=0.0, foot_cap=0.0, sensor_x=0.0, sensor_y=0.0):
+                     foot_slope=0.0, foot_cap=0.0, sensor_x=0.0, sensor_y=0.0,
+                     behind_radius=0.0, behind_margin=0.0):
     """In place: the ``terrain`` labels of the foot columns (module docstring) become
     ``obstacle``; returns how many changed. Noise cells take the points with heights in
     (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
@@ -113,7 +122,13 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     (point, slot) pairs for the last pass. The object test runs last and only for the
     columns that pass the others and hold terrain points (no other column changes a label):
     the tall points are looked up in the small set of those columns' 3 x 3 neighbourhoods
-    instead of all being inserted into a set of their own."""
+    instead of all being inserted into a set of their own.
+
+    With ``behind_radius`` > 0, then: the TERRAIN points within ``behind_radius`` (x/y) of a
+    mark whose column or one of its 8 neighbours holds an obstacle point at least
+    ``object_height`` up, and at least ``behind_margin`` farther (x/y range from the sensor)
+    than that mark, become ``obstacle`` too: they lie behind the low part of an object as
+    seen from the sensor (:func:`_mark_behind`)."""
     n = heights.shape[0]
     # candidates: obstacle points below their foot height (``foot_height``, or
     # ``foot_slope`` times their range up to ``foot_cap`` where higher); the keys' lattices
@@ -170,6 +185,9 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     # a one-bit-per-hash screen of the marked columns (8 KB, in cache): most terrain points
     # are in no marked column and need no look-up in the set
     screen = np.zeros(1024, np.uint64)
+    mark_points = np.empty(count, np.int32)  # the marks and their columns' slots
+    mark_slots = np.empty(count, np.int64)
+    n_marks = 0
     for c in range(count):
         k = candidates[c]
         s = cell_slots[c]
@@ -184,12 +202,30 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             marks[s] += 1
             top[s] = max(top[s], heights[k])
             bottom[s] = min(bottom[s], heights[k])
-    # the terrain points in marked columns (their slots kept)
+            mark_points[n_marks] = k
+            mark_slots[n_marks] = s
+            n_marks += 1
+    behind = behind_radius > 0.0
+    if behind:  # the marks by cells of side behind_radius, and a screen of their reach
+        (b_cells, b_shift, b_mask, b_start, b_x, b_y, b_r, b_slot, bx0, by0,
+         b_screen, b_occupied) = _behind_index(positions, mark_points[:n_marks], mark_slots[:n_marks],
+                                   behind_radius, sensor_x, sensor_y)
+    # the terrain points in marked columns (their slots kept), and with ``behind`` those
+    # within reach of a mark
     hit_points = candidates  # reused: (point, slot) of the terrain points in marked columns
     hit_slots = np.empty(n, np.int32)
     hits = 0
+    behind_points = np.empty(n if behind else 0, np.int32)
+    n_behind = 0
     for k in range(n):
         if labels[k] == terrain:
+            if behind:
+                key = _key(positions[k, 0], positions[k, 1], bx0, by0, 1.0 / behind_radius)
+                if key >= 0:
+                    word, bit = _wide_screen_bit(key)
+                    if b_screen[word] & bit != 0:
+                        behind_points[n_behind] = k
+                        n_behind += 1
             key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
             if key >= 0:
                 word, bit = _screen_bit(key)
@@ -208,50 +244,178 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     # columns of their 3 x 3 neighbourhoods that hold an obstacle point at least
     # object_height up (a small set, so the ~48,000 tall KITTI points are lookups in cache)
     enough = np.zeros(columns.size, np.bool_)
+    tested = np.zeros(columns.size, np.bool_)  # the columns the object test is run for
     qualified = 0
     for s in range(columns.size):
         if columns[s] != _EMPTY and level[s] > 0 and \
                 marks[s] >= fraction * (marks[s] + level[s]) and top[s] - bottom[s] > rise:
             enough[s] = True
+        # behind the marks: every marked column needs its object test
+        if enough[s] or (behind and columns[s] != _EMPTY):
+            tested[s] = True
             qualified += 1
     if qualified == 0 or tall == 0:
         return 0
     around, around_shift, around_mask = _new_set(9 * qualified)
+    # a screen of those neighbourhoods: most tall points (walls, canopies) stand in none, and
+    # the set (9 entries per tested column) may not fit in cache
+    wide = np.zeros(16384, np.uint64)
     for s in range(columns.size):
-        if not enough[s]:
+        if not tested[s]:
             continue
         ix = columns[s] >> 32
         iy = columns[s] & 4294967295
         for dx in range(-1, 2):
             for dy in range(-1, 2):
                 if ix + dx >= 0 and iy + dy >= 0:  # tall points' keys are never negative
-                    _find(around, around_shift, around_mask,
-                          (ix + dx) * 4294967296 + iy + dy, True)
+                    key = (ix + dx) * 4294967296 + iy + dy
+                    _find(around, around_shift, around_mask, key, True)
+                    word, bit = _wide_screen_bit(key)
+                    wide[word] |= bit
     standing = np.zeros(around.size, np.bool_)  # a tall point's column
     for c in range(tall):
         k = tall_points[c]
         key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
         if key >= 0:
+            word, bit = _wide_screen_bit(key)
+            if wide[word] & bit == 0:
+                continue
             s = _find(around, around_shift, around_mask, key, False)
             if s >= 0:
                 standing[s] = True
+    near = np.zeros(columns.size, np.bool_)  # an object stands in or beside the column
     for s in range(columns.size):
-        if not enough[s]:
+        if not tested[s]:
             continue
         ix = columns[s] >> 32
         iy = columns[s] & 4294967295
-        near = False
         for dx in range(-1, 2):
             for dy in range(-1, 2):
                 if ix + dx >= 0 and iy + dy >= 0:
                     a = _find(around, around_shift, around_mask,
                               (ix + dx) * 4294967296 + iy + dy, False)
-                    near = near or standing[a]
-        enough[s] = near
+                    near[s] = near[s] or standing[a]
     changed = 0
     for c in range(hits):
-        if enough[hit_slots[c]]:
+        if enough[hit_slots[c]] and near[hit_slots[c]]:
             labels[hit_points[c]] = obstacle
+            changed += 1
+    if behind:
+        changed += _take_behind(positions, labels, behind_points[:n_behind], near, b_cells,
+                                b_shift, b_mask, b_start, b_x, b_y, b_r, b_slot, bx0, by0,
+                                b_occupied, behind_radius, behind_margin, sensor_x, sensor_y,
+                                terrain, obstacle)
+    return changed
+
+
+@numba.njit(cache=True)
+def _behind_index(positions, mark_points, mark_slots, radius, sensor_x, sensor_y):
+    """The marks grouped by cells of side ``radius`` (a hash set on a lattice of multiples of
+    the side, so a point's marks within ``radius`` lie in its cell's 3 x 3 neighbourhood):
+    (cells, shift, mask, start, x, y, range from the sensor, column slot, x0, y0, reach,
+    occupied): the marks of the cell in slot s at start[s] .. start[s + 1] - 1 of the
+    per-mark arrays, by increasing range, and 128 KB screens of the cells within reach of a mark and of the cells
+    that hold one."""
+    m = mark_points.shape[0]
+    x_low = math.inf
+    y_low = math.inf
+    for i in range(m):
+        x_low = min(x_low, positions[mark_points[i], 0])
+        y_low = min(y_low, positions[mark_points[i], 1])
+    inv = 1.0 / radius
+    x0 = (math.floor(x_low * inv) - 2.0) * radius if m else 0.0  # neighbours' keys >= 0
+    y0 = (math.floor(y_low * inv) - 2.0) * radius if m else 0.0
+    cells, shift, mask = _new_set(m)
+    slot_of = np.empty(m, np.int64)
+    start = np.zeros(cells.size + 1, np.int64)
+    for i in range(m):
+        k = mark_points[i]
+        s = _find(cells, shift, mask, _key(positions[k, 0], positions[k, 1], x0, y0, inv), True)
+        slot_of[i] = s
+        start[s + 1] += 1
+    for s in range(cells.size):
+        start[s + 1] += start[s]
+    xs = np.empty(m)
+    ys = np.empty(m)
+    rs = np.empty(m)
+    column = np.empty(m, np.int64)
+    filled = start[:cells.size].copy()
+    for i in range(m):
+        g = filled[slot_of[i]]
+        k = mark_points[i]
+        xs[g] = positions[k, 0]
+        ys[g] = positions[k, 1]
+        rs[g] = math.hypot(positions[k, 0] - sensor_x, positions[k, 1] - sensor_y)
+        column[g] = mark_slots[i]
+        filled[slot_of[i]] += 1
+    for s in range(cells.size):  # each cell's marks by range (insertion sort: a few each)
+        for g in range(start[s] + 1, start[s + 1]):
+            j = g
+            while j > start[s] and rs[j - 1] > rs[j]:
+                xs[j - 1], xs[j] = xs[j], xs[j - 1]
+                ys[j - 1], ys[j] = ys[j], ys[j - 1]
+                rs[j - 1], rs[j] = rs[j], rs[j - 1]
+                column[j - 1], column[j] = column[j], column[j - 1]
+                j -= 1
+    screen = np.zeros(16384, np.uint64)
+    occupied = np.zeros(16384, np.uint64)
+    for s in range(cells.size):
+        if cells[s] == _EMPTY:
+            continue
+        word, bit = _wide_screen_bit(cells[s])
+        occupied[word] |= bit
+        ix = cells[s] >> 32
+        iy = cells[s] & 4294967295
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                word, bit = _wide_screen_bit((ix + dx) * 4294967296 + iy + dy)
+                screen[word] |= bit
+    return cells, shift, mask, start, xs, ys, rs, column, x0, y0, screen, occupied
+
+
+@numba.njit(cache=True)
+def _take_behind(positions, labels, points, near, cells, shift, mask, start, xs, ys, rs,
+                 column, x0, y0, occupied, radius, margin, sensor_x, sensor_y, terrain,
+                 obstacle):
+    """In place: the ``points`` still ``terrain`` within ``radius`` (x/y) of a mark whose
+    column is ``near`` an object and at least ``margin`` farther from the sensor (x/y range)
+    than that mark become ``obstacle`` (the marks as :func:`_behind_index` groups them);
+    returns how many."""
+    inv = 1.0 / radius
+    radius2 = radius * radius
+    changed = 0
+    for i in range(points.shape[0]):
+        k = points[i]
+        if labels[k] != terrain:
+            continue
+        x = positions[k, 0]
+        y = positions[k, 1]
+        key = _key(x, y, x0, y0, inv)
+        ix = key >> 32
+        iy = key & 4294967295
+        r = math.hypot(x - sensor_x, y - sensor_y)
+        found = False
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                if found or ix + dx < 0 or iy + dy < 0:
+                    continue
+                near_key = (ix + dx) * 4294967296 + iy + dy
+                word, bit = _wide_screen_bit(near_key)
+                if occupied[word] & bit == 0:  # no mark there: no look-up
+                    continue
+                s = _find(cells, shift, mask, near_key, False)
+                if s < 0:
+                    continue
+                for g in range(start[s], start[s + 1]):
+                    if rs[g] > r - margin:  # the cell's marks by range: none nearer
+                        break
+                    ddx = xs[g] - x
+                    ddy = ys[g] - y
+                    if near[column[g]] and ddx * ddx + ddy * ddy <= radius2:
+                        found = True
+                        break
+        if found:
+            labels[k] = obstacle
             changed += 1
     return changed
 

@@ -11,8 +11,8 @@ from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import refine_surface
-from ..segment import (FOOT_CELL, FOOT_HEIGHT, FOOT_LINES, TerrainLabel, segment_points,
-                       sensor_in_cloud)
+from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_HEIGHT, FOOT_LINES, TerrainLabel,
+                       segment_points, sensor_in_cloud)
 from ..terrain import (
     KNOT_PLACEMENTS,
     MAX_SLOPE_DEG,
@@ -221,7 +221,9 @@ class Segmenter(Stage):
     object (a bush, a wall, a wheel) and become OBSTACLE (o3d_terrain.segment.mark_object_feet).
     On a rotating lidar's scan the foot height grows with range to foot_lines times the
     height between its neighbouring scan lines on a vertical face (at most 1.5 m), where the
-    lowest return on an object lies that far above the ground return before it.
+    lowest return on an object lies that far above the ground return before it; and terrain
+    points within foot_behind of such a low obstacle point beside an object, 0.13 m or more
+    farther from the sensor, lie behind the object's low part and become OBSTACLE too.
     """
 
     reads = ("surface",)
@@ -271,6 +273,14 @@ class Segmenter(Stage):
              "range lies that far above the ground; 0 = foot_height at every range "
              "(o3d_terrain.segment.scan_line_spacing)",
     )
+    foot_behind: float = option(
+        FOOT_BEHIND, unit="m", rule=NON_NEGATIVE,
+        help="on a lidar's scan (scan lines found, noise not growing with range), terrain "
+             "points within this x/y distance of an obstacle point below the foot height "
+             "beside an object, and 0.13 m or more farther from the sensor, lie behind the "
+             "object's low part (its base, or ground under its overhang) and become "
+             "obstacles; 0 = off",
+    )
 
     def run(self, frame: Frame) -> Frame:
         labels, heights = self.label(frame.product("surface"), frame.positions)
@@ -292,4 +302,5 @@ class Segmenter(Stage):
                               sensor_origin=self.sensor_origin,
                               misfit=self.misfit_threshold, along_normal=self.along_normal,
                               foot_height=self.foot_height,
-                              foot_cell=self.foot_cell, foot_lines=self.foot_lines)
+                              foot_cell=self.foot_cell, foot_lines=self.foot_lines,
+                              foot_behind=self.foot_behind)
