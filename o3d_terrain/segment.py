@@ -82,6 +82,11 @@ FOOT_CAP = 1.5
 #: (docs/algorithm.md, "Ground behind the low part of an object")
 FOOT_BEHIND = 0.2
 FOOT_BEHIND_MARGIN = 0.13
+#: a column is no foot when its lowest mark lies more than FOOT_GAP (m), or FOOT_LINES
+#: scan-line gaps at its range, above its highest terrain point: free space under an overhang
+#: (a car's body, a branch), where the ground below is seen (docs/algorithm.md, "Free space
+#: under an overhang")
+FOOT_GAP = 0.15
 #: :func:`scan_line_spacing`: the wedges' half-width (deg), the ranges they cover (m), the
 #: largest elevation gap within one scan line (deg), the fewest gaps for an estimate and the
 #: most points it reads (every k-th point of larger clouds)
@@ -321,7 +326,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                    sensor_origin=(0.0, 0.0, 0.0), misfit: bool = True,
                    along_normal: bool = True, foot_height: float = FOOT_HEIGHT,
                    foot_cell: float = FOOT_CELL, foot_lines: float = FOOT_LINES,
-                   foot_behind: float = FOOT_BEHIND) -> tuple[np.ndarray, np.ndarray]:
+                   foot_behind: float = FOOT_BEHIND,
+                   foot_gap: float = FOOT_GAP) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -358,6 +364,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         points within this distance (m, x/y) of a foot's mark (an OBSTACLE point below the
         foot height, out of the noise, beside an object) and at least
         :data:`FOOT_BEHIND_MARGIN` farther from the sensor than it become OBSTACLE; 0 = off.
+    foot_gap: a column whose lowest mark lies more than this (m), or ``foot_lines`` scan-line
+        gaps at its range, above its highest TERRAIN point is free space under an overhang,
+        not a foot; 0 = off.
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -368,7 +377,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                             _check("foot_cell", foot_cell, positive=True),
                             _check("foot_lines", foot_lines, positive=False,
                                    unit="scan-line gaps"),
-                            _check("foot_behind", foot_behind, positive=False))
+                            _check("foot_behind", foot_behind, positive=False),
+                            _check("foot_gap", foot_gap, positive=False))
                 if m]
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
         problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
@@ -440,7 +450,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold, line_spacing=spacing,
                          foot_lines=foot_lines, sensor_origin=sensor_origin,
-                         behind_radius=behind)
+                         behind_radius=behind, foot_gap=foot_gap)
     return labels, h
 
 
@@ -483,7 +493,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                      line_spacing: float = 0.0, foot_lines: float = FOOT_LINES,
                      foot_cap: float = FOOT_CAP, sensor_origin=(0.0, 0.0, 0.0),
                      behind_radius: float = 0.0,
-                     behind_margin: float = FOOT_BEHIND_MARGIN) -> int:
+                     behind_margin: float = FOOT_BEHIND_MARGIN,
+                     foot_gap: float = FOOT_GAP) -> int:
     """In place: TERRAIN labels in the x/y columns (side ``cell``, m) that are the foot of an
     object become OBSTACLE; returns how many changed. A column is a foot when it holds OBSTACLE
     points less than the foot height above the terrain (``foot_height``, m; with
@@ -499,7 +510,11 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
       terrain does not rise that much across a column, so where the surface undercuts steep
       ground the ground above the threshold does not take the ground below it along, and
     - the column or one of its 8 neighbours holds an OBSTACLE point at least ``object_height``
-      (m) above the terrain: an object stands there.
+      (m) above the terrain: an object stands there, and
+    - (with ``foot_gap`` > 0) the column's lowest mark lies at most ``foot_gap`` (m), or
+      ``foot_lines`` scan-line gaps at its range where that is more, above its highest
+      TERRAIN point: a larger gap is free space under an overhang (a car's body, a branch)
+      with the ground seen below it, not an object's base.
 
     The base of a bush, a wall or a wheel lies within the terrain threshold, and the column
     shows it belongs to the object; a noisy sensor's upper tail of ground points (a stereo
@@ -538,7 +553,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                                    unit="scan-line gaps"),
                             _check("foot_cap", foot_cap, positive=False),
                             _check("behind_radius", behind_radius, positive=False),
-                            _check("behind_margin", behind_margin, positive=False)) if m]
+                            _check("behind_margin", behind_margin, positive=False),
+                            _check("foot_gap", foot_gap, positive=False)) if m]
     if line_spacing >= 90:
         problems.append(f"line_spacing must be below 90 degrees, got {line_spacing!r}")
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
@@ -554,7 +570,8 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
         float(noise_depth), int(TerrainLabel.TERRAIN), int(TerrainLabel.OBSTACLE),
         float(foot_lines) * math.tan(math.radians(line_spacing)), float(foot_cap),
         float(sensor_origin[0]), float(sensor_origin[1]), float(behind_radius),
-        float(behind_margin)))
+        float(behind_margin), float(foot_gap),
+        float(foot_lines) * math.tan(math.radians(line_spacing))))
 
 
 def relabel_along_normal(labels: np.ndarray, heights: np.ndarray, positions,

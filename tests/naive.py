@@ -285,7 +285,7 @@ def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=
 def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, rise,
                      object_height, noise_cell, noise_factor, noise_depth, terrain=1,
                      obstacle=2, foot_slope=0.0, foot_cap=0.0, sensor=(0.0, 0.0),
-                     behind_radius=0.0, behind_margin=0.0):
+                     behind_radius=0.0, behind_margin=0.0, foot_gap=0.0):
     """Object feet with dicts of cells: candidates are OBSTACLE points below their foot
     height, ``foot_height`` or min(foot_slope * r, foot_cap) where higher (r: x/y range from
     ``sensor``); keys floor((x - x0) / side), floor((y - y0) / side) with x0/y0 the multiple
@@ -295,7 +295,9 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     depth; a marked column's TERRAIN points become OBSTACLE when marks >= fraction * (marks +
     its TERRAIN points), its highest mark is more than ``rise`` above the lowest of its marks
     and TERRAIN points, and it or one of its 8 neighbours holds an OBSTACLE point at least
-    ``object_height`` up. Then, with ``behind_radius`` > 0, the TERRAIN points within
+    ``object_height`` up, and (``foot_gap`` > 0) its lowest mark lies at most
+    max(foot_gap, foot_slope * that mark's range) above its highest TERRAIN point. Then, with
+    ``behind_radius`` > 0, the TERRAIN points within
     ``behind_radius`` (x/y) of a mark whose column or one of its 8 neighbours holds such an
     obstacle point, and at least ``behind_margin`` farther from ``sensor`` (x/y range),
     become OBSTACLE. Returns the new labels and how many changed."""
@@ -344,11 +346,22 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     objects = {key(k, cell) for k in range(len(labels))
                if labels[k] == obstacle and heights[k] >= object_height and finite_xy(k)}
     level: dict = {}
+    terrain_top: dict = {}
     for k in range(len(labels)):
         if labels[k] == terrain and finite_xy(k):
             level[key(k, cell)] = level.get(key(k, cell), 0) + 1
             if key(k, cell) in column_heights and math.isfinite(heights[k]):
                 column_heights[key(k, cell)]["all"].append(heights[k])
+                terrain_top[key(k, cell)] = max(terrain_top.get(key(k, cell), -math.inf),
+                                                heights[k])
+
+    def no_gap(c):
+        if foot_gap <= 0:
+            return True
+        low = min((k for k in mark_points if key(k, cell) == c), key=lambda k: heights[k])
+        reach = foot_slope * math.hypot(positions[low, 0] - sensor[0],
+                                        positions[low, 1] - sensor[1])
+        return heights[low] - terrain_top.get(c, -math.inf) <= max(foot_gap, reach)
     changed = 0
     for k in range(len(labels)):
         if labels[k] != terrain or not finite_xy(k):
@@ -358,7 +371,7 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
         near = any((ix + dx, iy + dy) in objects for dx in (-1, 0, 1) for dy in (-1, 0, 1))
         if m > 0 and near and m >= fraction * (m + level[key(k, cell)]) and \
                 max(column_heights[key(k, cell)]["marks"]) \
-                - min(column_heights[key(k, cell)]["all"]) > rise:
+                - min(column_heights[key(k, cell)]["all"]) > rise and no_gap(key(k, cell)):
             labels[k] = obstacle
             changed += 1
     if behind_radius > 0:

@@ -53,24 +53,26 @@ def test_kernel_matches_the_plain_reference():
              (0.07, 0.4, 0.5, 0.25, 1.1, 2.0, 0.0, 0.0), (0.5, 1.2, 0.25, 0.6, 0.2, 1.0, 1.0, 0.0),
              (0.15, 0.3, 0.3, 0.1, 0.35, 1.0, 3.5, 2.0),  # grows with range
              (0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 2.0, 0.2, 0.13),  # and behind the marks
-             (0.07, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 0.0, 0.3, 0.05))
+             (0.07, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 0.0, 0.3, 0.05),
+             (0.15, 0.5, 0.3, 0.1, 0.35, 1.0, 3.5, 0.0, 0.0, 0.0, 0.4),  # no free space
+             (0.3, 0.8, 0.2, 0.0, 0.35, 1.0, 3.5, 2.0, 0.2, 0.13, 0.2))
     sensor = (0.5, 4.5e6 - 1.0, 0.0)
     counts = []
     for cell, foot_height, fraction, rise, object_height, noise_cell, noise_factor, \
             spacing, *behind in cases:
-        radius, margin = behind or (0.0, 0.0)
+        radius, margin, gap = (list(behind) + [0.0, 0.0, 0.0])[:3]
         slope = 3.0 * np.tan(np.radians(spacing))
         expected, count = naive.mark_object_feet(labels, heights, positions, foot_height,
                                                  cell, fraction, rise, object_height,
                                                  noise_cell, noise_factor, 0.5, T, O, slope,
-                                                 0.9, sensor[:2], radius, margin)
+                                                 0.9, sensor[:2], radius, margin, gap)
         got = labels.copy()
         changed = mark_object_feet(got, heights, positions, foot_height=foot_height, cell=cell,
                                    fraction=fraction, rise=rise, object_height=object_height,
                                    noise_cell=noise_cell, noise_factor=noise_factor,
                                    line_spacing=spacing, foot_lines=3.0, foot_cap=0.9,
                                    sensor_origin=sensor, behind_radius=radius,
-                                   behind_margin=margin)
+                                   behind_margin=margin, foot_gap=gap)
         np.testing.assert_array_equal(got, expected)
         assert changed == count
         counts.append(count)
@@ -136,7 +138,7 @@ def test_a_column_that_rises_no_more_than_terrain_is_not_a_foot():
     surface = flat_surface()
     # the columns lie on a lattice of multiples of 0.15 m: each group lies inside one column
     column = [[5.18, 0.08, 0.03], [5.20, 0.10, 0.06], [5.16, 0.06, 0.11]]  # a 0.08 m rise
-    foot = [[8.16, 0.08, 0.03], [8.18, 0.10, 0.06], [8.20, 0.12, 0.25]]  # a post's low part
+    foot = [[8.16, 0.08, 0.03], [8.18, 0.10, 0.06], [8.20, 0.12, 0.17]]  # a post's low part
     post = [[8.19, 0.11, 1.0]]  # the post above it
     positions = np.array(column + foot + post, float)
     labels, _ = segment_points(surface, positions, threshold=0.1)
@@ -154,7 +156,7 @@ def test_columns_lie_on_a_fixed_lattice():
     other obstacle points lie: a low obstacle point far away (which moved the columns when
     they were counted from the lowest candidate) changes nothing."""
     surface = flat_surface()
-    foot = [[10.07, 0.08, 0.05], [10.17, 0.10, 0.04], [10.12, 0.09, 0.30]]  # one column
+    foot = [[10.07, 0.08, 0.05], [10.17, 0.10, 0.04], [10.12, 0.09, 0.18]]  # one column
     post = [[10.12, 0.09, 1.0]]
     positions = np.array(foot + post, float)
     labels, _ = segment_points(surface, positions, threshold=0.1, foot_lines=0)
@@ -257,3 +259,21 @@ def test_behind_the_marks_only_on_a_lidar_scan():
         mark_object_feet(labels.copy(), h, stereo)
     with pytest.raises(InputError, match="foot_behind"):
         segment_points(surface, stereo, foot_behind=-1)
+
+
+def test_free_space_under_an_overhang_is_no_foot():
+    """Ground seen under a car's body: the column's lowest mark (the body's underside, 0.35 m
+    up) lies more than 0.15 m above its ground points, so the ground stays terrain; the base
+    of a bush, whose returns continue up from the ground, still goes with the bush."""
+    surface = flat_surface()
+    under = [[6.02, 0.02, 0.01], [6.05, 0.06, 0.02], [6.10, 0.04, 0.35], [6.08, 0.08, 0.45]]
+    body = [[6.06, 0.05, 0.9]]
+    bush = [[9.02, 0.02, 0.01], [9.05, 0.06, 0.02], [9.08, 0.04, 0.12], [9.10, 0.08, 0.24],
+            [9.06, 0.05, 0.9]]
+    positions = np.array(under + body + bush, float)
+    labels, _ = segment_points(surface, positions, threshold=0.1, foot_lines=0)
+    assert labels.tolist() == [T, T, O, O, O, O, O, O, O, O]
+    labels, h = segment_points(surface, positions, threshold=0.1, foot_height=0)
+    got = labels.copy()
+    assert mark_object_feet(got, h, positions, foot_gap=0) == 4  # without the rule: both
+    assert got.tolist() == [O] * 10

@@ -53,8 +53,12 @@ def test_labels_follow_the_height_rule():
     labels, h = segment_points(s, pts, threshold=0.2, below_threshold=0.5, foot_height=0)
     assert labels.tolist() == [1, 2, 3, 1, 0, 0]
     # ... and with the feet of objects, the obstacle point 0.4 m up takes the column's terrain
-    labels, _ = segment_points(s, pts, threshold=0.2, below_threshold=0.5)
+    # (without the free-space rule: it lies 0.3 m above the column's highest terrain point,
+    # which by default reads as space under an overhang)
+    labels, _ = segment_points(s, pts, threshold=0.2, below_threshold=0.5, foot_gap=0)
     assert labels.tolist() == [2, 2, 3, 2, 0, 0]
+    labels, _ = segment_points(s, pts, threshold=0.2, below_threshold=0.5)
+    assert labels.tolist() == [1, 2, 3, 1, 0, 0]
     np.testing.assert_allclose(h[:4], [0.1, 0.4, -0.6, -0.4], atol=1e-9)
 
 

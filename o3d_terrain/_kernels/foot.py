@@ -111,7 +111,7 @@ def _lattice_origin(low, side):
 def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, rise,
                      object_height, noise_cell, noise_factor, noise_depth, terrain, obstacle,
                      foot_slope=0.0, foot_cap=0.0, sensor_x=0.0, sensor_y=0.0,
-                     behind_radius=0.0, behind_margin=0.0):
+                     behind_radius=0.0, behind_margin=0.0, foot_gap=0.0, gap_slope=0.0):
     """In place: the ``terrain`` labels of the foot columns (module docstring) become
     ``obstacle``; returns how many changed. Noise cells take the points with heights in
     (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
@@ -128,7 +128,10 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     mark whose column or one of its 8 neighbours holds an obstacle point at least
     ``object_height`` up, and at least ``behind_margin`` farther (x/y range from the sensor)
     than that mark, become ``obstacle`` too: they lie behind the low part of an object as
-    seen from the sensor (:func:`_mark_behind`)."""
+    seen from the sensor (:func:`_take_behind`).
+
+    With ``foot_gap`` > 0 a column is a foot only when its lowest mark lies at most
+    max(``foot_gap``, ``gap_slope`` x that mark's range) above its highest terrain point."""
     n = heights.shape[0]
     # candidates: obstacle points below their foot height (``foot_height``, or
     # ``foot_slope`` times their range up to ``foot_cap`` where higher); the keys' lattices
@@ -182,6 +185,9 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     level = np.zeros(columns.size, np.int64)
     top = np.full(columns.size, -np.inf)  # the highest mark of a column
     bottom = np.full(columns.size, np.inf)  # the lowest of its marks and terrain points
+    lowest_mark = np.full(columns.size, np.inf)  # and its lowest mark, that mark's range
+    lowest_range = np.zeros(columns.size)
+    highest_terrain = np.full(columns.size, -np.inf)  # its highest terrain point
     # a one-bit-per-hash screen of the marked columns (8 KB, in cache): most terrain points
     # are in no marked column and need no look-up in the set
     screen = np.zeros(1024, np.uint64)
@@ -202,6 +208,10 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             marks[s] += 1
             top[s] = max(top[s], heights[k])
             bottom[s] = min(bottom[s], heights[k])
+            if heights[k] < lowest_mark[s]:
+                lowest_mark[s] = heights[k]
+                lowest_range[s] = math.hypot(positions[k, 0] - sensor_x,
+                                             positions[k, 1] - sensor_y)
             mark_points[n_marks] = k
             mark_slots[n_marks] = s
             n_marks += 1
@@ -239,6 +249,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                     hits += 1
                     if math.isfinite(heights[k]):
                         bottom[s] = min(bottom[s], heights[k])
+                        highest_terrain[s] = max(highest_terrain[s], heights[k])
     # the columns where the marks are enough of the points and rise enough (the ones with
     # terrain points: only those change labels); then the object test for them alone: the
     # columns of their 3 x 3 neighbourhoods that hold an obstacle point at least
@@ -248,7 +259,9 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     qualified = 0
     for s in range(columns.size):
         if columns[s] != _EMPTY and level[s] > 0 and \
-                marks[s] >= fraction * (marks[s] + level[s]) and top[s] - bottom[s] > rise:
+                marks[s] >= fraction * (marks[s] + level[s]) and top[s] - bottom[s] > rise and \
+                (foot_gap <= 0.0 or lowest_mark[s] - highest_terrain[s]
+                 <= max(foot_gap, gap_slope * lowest_range[s])):
             enough[s] = True
         # behind the marks: every marked column needs its object test
         if enough[s] or (behind and columns[s] != _EMPTY):

@@ -11,8 +11,8 @@ from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import refine_surface
-from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_HEIGHT, FOOT_LINES, TerrainLabel,
-                       segment_points, sensor_in_cloud)
+from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_GAP, FOOT_HEIGHT, FOOT_LINES,
+                       TerrainLabel, segment_points, sensor_in_cloud)
 from ..terrain import (
     KNOT_PLACEMENTS,
     MAX_SLOPE_DEG,
@@ -223,7 +223,9 @@ class Segmenter(Stage):
     height between its neighbouring scan lines on a vertical face (at most 1.5 m), where the
     lowest return on an object lies that far above the ground return before it; and terrain
     points within foot_behind of such a low obstacle point beside an object, 0.13 m or more
-    farther from the sensor, lie behind the object's low part and become OBSTACLE too.
+    farther from the sensor, lie behind the object's low part and become OBSTACLE too. A
+    column whose lowest obstacle point lies more than foot_gap above its terrain points is
+    free space under an overhang (a car's body) and no foot.
     """
 
     reads = ("surface",)
@@ -281,6 +283,13 @@ class Segmenter(Stage):
              "object's low part (its base, or ground under its overhang) and become "
              "obstacles; 0 = off",
     )
+    foot_gap: float = option(
+        FOOT_GAP, unit="m", rule=NON_NEGATIVE,
+        help="a foot_cell column whose lowest obstacle point lies more than this (or "
+             "foot_lines scan-line gaps at its range) above its highest terrain point is free "
+             "space under an overhang (a car's body, a branch), not the foot of an object: its "
+             "ground stays terrain; 0 = off",
+    )
 
     def run(self, frame: Frame) -> Frame:
         labels, heights = self.label(frame.product("surface"), frame.positions)
@@ -303,4 +312,4 @@ class Segmenter(Stage):
                               misfit=self.misfit_threshold, along_normal=self.along_normal,
                               foot_height=self.foot_height,
                               foot_cell=self.foot_cell, foot_lines=self.foot_lines,
-                              foot_behind=self.foot_behind)
+                              foot_behind=self.foot_behind, foot_gap=self.foot_gap)
