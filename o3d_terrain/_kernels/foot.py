@@ -10,7 +10,12 @@ surface undercuts steep ground, the ground above the threshold does not take the
 it along), and the column or one of its 8 neighbours holds an obstacle point at least
 ``object_height`` up (an object stands there, not the upper tail of a noisy sensor's ground).
 The noise test, the fraction and the object keep a noisy sensor's (a stereo pair's) upper tail
-of ground points from marking the columns of the ground they belong to.
+of ground points from marking the columns of the ground they belong to. On a lidar's scan the
+foot height may grow with range (``foot_slope``: a sparse lidar's next line up a face lies
+higher at range), a column whose lowest mark lies more than ``foot_gap`` (or ``gap_slope`` x
+its range) above its terrain is free space under an overhang and no foot, and terrain points
+just behind a mark beside an object, as the sensor sees them, go with it (``behind_radius``).
+The sensor's scan-line spacing comes from :func:`scan_line_gaps`.
 
 The columns and cells live in open-addressing hash sets of their integer keys, holding only the
 ones that candidate points occupy, so the cost does not depend on the cloud's extent (a
@@ -120,9 +125,10 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     cells, the columns and the objects read only those (the candidates' noise-cell slots
     kept from the first of them); the terrain points of marked columns are kept as
     (point, slot) pairs for the last pass. The object test runs last and only for the
-    columns that pass the others and hold terrain points (no other column changes a label):
-    the tall points are looked up in the small set of those columns' 3 x 3 neighbourhoods
-    instead of all being inserted into a set of their own.
+    columns that pass the others and hold terrain points (no other column changes a label;
+    with ``behind_radius`` > 0 for every marked column): the tall points are looked up in the
+    small set of those columns' 3 x 3 neighbourhoods (behind a screen of it) instead of all
+    being inserted into a set of their own.
 
     With ``behind_radius`` > 0, then: the TERRAIN points within ``behind_radius`` (x/y) of a
     mark whose column or one of its 8 neighbours holds an obstacle point at least
