@@ -555,7 +555,7 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
                             _check("behind_radius", behind_radius, positive=False),
                             _check("behind_margin", behind_margin, positive=False),
                             _check("foot_gap", foot_gap, positive=False)) if m]
-    if line_spacing >= 90:
+    if isinstance(line_spacing, (int, float)) and line_spacing >= 90:
         problems.append(f"line_spacing must be below 90 degrees, got {line_spacing!r}")
     if len(sensor_origin) != 3 or not all(math.isfinite(float(v)) for v in sensor_origin):
         problems.append(f"sensor_origin must be three finite numbers, got {sensor_origin!r}")
