@@ -239,6 +239,9 @@ def test_ground_behind_the_low_part_of_an_object_goes_with_it():
     assert mark_object_feet(got, h, positions, behind_radius=0.2, behind_margin=0.2) == 0
     with pytest.raises(InputError, match="behind_radius"):
         mark_object_feet(labels.copy(), h, positions, behind_radius=-0.1)
+    for bad in ("2", 95.0, float("nan")):
+        with pytest.raises(InputError, match="line_spacing"):
+            mark_object_feet(labels.copy(), h, positions, line_spacing=bad)
 
 
 def test_behind_the_marks_only_on_a_lidar_scan():
