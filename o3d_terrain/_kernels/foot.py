@@ -221,11 +221,22 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             mark_points[n_marks] = k
             mark_slots[n_marks] = s
             n_marks += 1
-    behind = behind_radius > 0.0
-    if behind:  # the marks by cells of side behind_radius, and a screen of their reach
-        (b_cells, b_shift, b_mask, b_start, b_x, b_y, b_r, b_slot, bx0, by0,
-         b_screen, b_occupied) = _behind_index(positions, mark_points[:n_marks], mark_slots[:n_marks],
-                                   behind_radius, sensor_x, sensor_y)
+    behind = behind_radius > 0.0 and tall > 0
+    if behind:
+        # the object test for every marked column now (the marks beside an object are the
+        # ones the rule behind the marks uses), then those marks by cells of side
+        # behind_radius and a screen of their reach
+        near = _object_test(positions, columns, columns != _EMPTY, tall_points[:tall], cx0,
+                            cy0, inv_cell)
+        beside = np.empty(n_marks, np.int32)
+        n_beside = 0
+        for i in range(n_marks):
+            if near[mark_slots[i]]:
+                beside[n_beside] = mark_points[i]
+                n_beside += 1
+        (b_cells, b_shift, b_mask, b_start, b_x, b_y, b_r, bx0, by0, b_screen,
+         b_occupied) = _behind_index(positions, beside[:n_beside], behind_radius, sensor_x,
+                                     sensor_y)
     # the terrain points in marked columns (their slots kept), and with ``behind`` those
     # within reach of a mark
     hit_points = candidates  # reused: (point, slot) of the terrain points in marked columns
@@ -257,11 +268,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                         bottom[s] = min(bottom[s], heights[k])
                         highest_terrain[s] = max(highest_terrain[s], heights[k])
     # the columns where the marks are enough of the points and rise enough (the ones with
-    # terrain points: only those change labels); then the object test for them alone: the
-    # columns of their 3 x 3 neighbourhoods that hold an obstacle point at least
-    # object_height up (a small set, so the ~48,000 tall KITTI points are lookups in cache)
+    # terrain points: only those change labels); then the object test for them alone
     enough = np.zeros(columns.size, np.bool_)
-    tested = np.zeros(columns.size, np.bool_)  # the columns the object test is run for
     qualified = 0
     for s in range(columns.size):
         if columns[s] != _EMPTY and level[s] > 0 and \
@@ -269,15 +277,37 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                 (foot_gap <= 0.0 or lowest_mark[s] - highest_terrain[s]
                  <= max(foot_gap, gap_slope * lowest_range[s])):
             enough[s] = True
-        # behind the marks: every marked column needs its object test
-        if enough[s] or (behind and columns[s] != _EMPTY):
-            tested[s] = True
             qualified += 1
-    if qualified == 0 or tall == 0:
+    if tall == 0:
         return 0
-    around, around_shift, around_mask = _new_set(9 * qualified)
-    # a screen of those neighbourhoods: most tall points (walls, canopies) stand in none, and
-    # the set (9 entries per tested column) may not fit in cache
+    if not behind:
+        if qualified == 0:
+            return 0
+        near = _object_test(positions, columns, enough, tall_points[:tall], cx0, cy0, inv_cell)
+    changed = 0
+    for c in range(hits):
+        if enough[hit_slots[c]] and near[hit_slots[c]]:
+            labels[hit_points[c]] = obstacle
+            changed += 1
+    if behind:
+        changed += _take_behind(positions, labels, behind_points[:n_behind], b_cells, b_shift,
+                                b_mask, b_start, b_x, b_y, b_r, bx0, by0, b_occupied,
+                                behind_radius, behind_margin, sensor_x, sensor_y, terrain,
+                                obstacle)
+    return changed
+
+
+@numba.njit(cache=True)
+def _object_test(positions, columns, tested, tall_points, cx0, cy0, inv_cell):
+    """Per slot of the columns' set: whether the column (for the ``tested`` slots) or one of
+    its 8 neighbours holds one of the ``tall_points``. Their 3 x 3 neighbourhoods go into a
+    small set (9 entries per tested column), so the tall points (~48,000 on a KITTI frame)
+    are look-ups in it, behind a screen of it: most tall points (walls, canopies) stand in
+    none of them."""
+    count = 0
+    for s in range(columns.size):
+        count += tested[s]
+    around, around_shift, around_mask = _new_set(9 * max(count, 1))
     wide = np.zeros(16384, np.uint64)
     for s in range(columns.size):
         if not tested[s]:
@@ -292,7 +322,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                     word, bit = _wide_screen_bit(key)
                     wide[word] |= bit
     standing = np.zeros(around.size, np.bool_)  # a tall point's column
-    for c in range(tall):
+    for c in range(tall_points.shape[0]):
         k = tall_points[c]
         key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
         if key >= 0:
@@ -302,7 +332,7 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             s = _find(around, around_shift, around_mask, key, False)
             if s >= 0:
                 standing[s] = True
-    near = np.zeros(columns.size, np.bool_)  # an object stands in or beside the column
+    near = np.zeros(columns.size, np.bool_)
     for s in range(columns.size):
         if not tested[s]:
             continue
@@ -314,25 +344,14 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                     a = _find(around, around_shift, around_mask,
                               (ix + dx) * 4294967296 + iy + dy, False)
                     near[s] = near[s] or standing[a]
-    changed = 0
-    for c in range(hits):
-        if enough[hit_slots[c]] and near[hit_slots[c]]:
-            labels[hit_points[c]] = obstacle
-            changed += 1
-    if behind:
-        changed += _take_behind(positions, labels, behind_points[:n_behind], near, b_cells,
-                                b_shift, b_mask, b_start, b_x, b_y, b_r, b_slot, bx0, by0,
-                                b_occupied, behind_radius, behind_margin, sensor_x, sensor_y,
-                                terrain, obstacle)
-    return changed
+    return near
 
 
 @numba.njit(cache=True)
-def _behind_index(positions, mark_points, mark_slots, radius, sensor_x, sensor_y):
+def _behind_index(positions, mark_points, radius, sensor_x, sensor_y):
     """The marks grouped by cells of side ``radius`` (a hash set on a lattice of multiples of
     the side, so a point's marks within ``radius`` lie in its cell's 3 x 3 neighbourhood):
-    (cells, shift, mask, start, x, y, range from the sensor, column slot, x0, y0, reach,
-    occupied): the marks of the cell in slot s at start[s] .. start[s + 1] - 1 of the
+    (cells, shift, mask, start, x, y, range from the sensor, x0, y0, reach, occupied): the marks of the cell in slot s at start[s] .. start[s + 1] - 1 of the
     per-mark arrays, by increasing range, and 128 KB screens of the cells within reach of a mark and of the cells
     that hold one."""
     m = mark_points.shape[0]
@@ -357,7 +376,6 @@ def _behind_index(positions, mark_points, mark_slots, radius, sensor_x, sensor_y
     xs = np.empty(m)
     ys = np.empty(m)
     rs = np.empty(m)
-    column = np.empty(m, np.int64)
     filled = start[:cells.size].copy()
     for i in range(m):
         g = filled[slot_of[i]]
@@ -365,7 +383,6 @@ def _behind_index(positions, mark_points, mark_slots, radius, sensor_x, sensor_y
         xs[g] = positions[k, 0]
         ys[g] = positions[k, 1]
         rs[g] = math.hypot(positions[k, 0] - sensor_x, positions[k, 1] - sensor_y)
-        column[g] = mark_slots[i]
         filled[slot_of[i]] += 1
     for s in range(cells.size):  # each cell's marks by range (insertion sort: a few each)
         for g in range(start[s] + 1, start[s + 1]):
@@ -374,7 +391,6 @@ def _behind_index(positions, mark_points, mark_slots, radius, sensor_x, sensor_y
                 xs[j - 1], xs[j] = xs[j], xs[j - 1]
                 ys[j - 1], ys[j] = ys[j], ys[j - 1]
                 rs[j - 1], rs[j] = rs[j], rs[j - 1]
-                column[j - 1], column[j] = column[j], column[j - 1]
                 j -= 1
     screen = np.zeros(16384, np.uint64)
     occupied = np.zeros(16384, np.uint64)
@@ -389,17 +405,15 @@ def _behind_index(positions, mark_points, mark_slots, radius, sensor_x, sensor_y
             for dy in range(-1, 2):
                 word, bit = _wide_screen_bit((ix + dx) * 4294967296 + iy + dy)
                 screen[word] |= bit
-    return cells, shift, mask, start, xs, ys, rs, column, x0, y0, screen, occupied
+    return cells, shift, mask, start, xs, ys, rs, x0, y0, screen, occupied
 
 
 @numba.njit(cache=True)
-def _take_behind(positions, labels, points, near, cells, shift, mask, start, xs, ys, rs,
-                 column, x0, y0, occupied, radius, margin, sensor_x, sensor_y, terrain,
-                 obstacle):
-    """In place: the ``points`` still ``terrain`` within ``radius`` (x/y) of a mark whose
-    column is ``near`` an object and at least ``margin`` farther from the sensor (x/y range)
-    than that mark become ``obstacle`` (the marks as :func:`_behind_index` groups them);
-    returns how many."""
+def _take_behind(positions, labels, points, cells, shift, mask, start, xs, ys, rs, x0, y0,
+                 occupied, radius, margin, sensor_x, sensor_y, terrain, obstacle):
+    """In place: the ``points`` still ``terrain`` within ``radius`` (x/y) of a mark and at
+    least ``margin`` farther from the sensor (x/y range) than it become ``obstacle`` (the
+    marks as :func:`_behind_index` groups them); returns how many."""
     inv = 1.0 / radius
     radius2 = radius * radius
     changed = 0
@@ -430,7 +444,7 @@ def _take_behind(positions, labels, points, near, cells, shift, mask, start, xs,
                         break
                     ddx = xs[g] - x
                     ddy = ys[g] - y
-                    if near[column[g]] and ddx * ddx + ddy * ddy <= radius2:
+                    if ddx * ddx + ddy * ddy <= radius2:
                         found = True
                         break
         if found:
