@@ -524,7 +524,9 @@ def mark_object_feet(labels: np.ndarray, heights: np.ndarray, positions, *,
     a threshold at or above foot_height) change nothing; ``foot_height`` 0 changes nothing.
     ``labels`` (N,) uint8 as :func:`label_heights` writes them, ``heights`` (N,) above the
     terrain. The columns and the noise cells lie on fixed lattices (multiples of their side),
-    so a column's verdict does not depend on points outside it and its neighbours.
+    so a column's verdict does not depend on points outside it and its neighbours; the
+    columns on two, the second shifted by half a column along x and y, and a TERRAIN point
+    goes with a foot column of either (an object's face falls well inside a column of one).
 
     With ``behind_radius`` > 0 (m), then the TERRAIN points within that x/y distance of a
     mark (an OBSTACLE point below the foot height that stands out of the noise) whose column

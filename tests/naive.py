@@ -300,7 +300,10 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     ``behind_radius`` > 0, the TERRAIN points within
     ``behind_radius`` (x/y) of a mark whose column or one of its 8 neighbours holds such an
     obstacle point, and at least ``behind_margin`` farther from ``sensor`` (x/y range),
-    become OBSTACLE. Returns the new labels and how many changed."""
+    become OBSTACLE. The columns lie on two lattices, the second shifted by half a column
+    along x and y (its origin half a column lower); a TERRAIN point goes with a foot column
+    of either, both judged on the same labels; the rule behind the marks uses the first
+    lattice's object test. Returns the new labels and how many changed."""
     labels = labels.copy()
 
     def finite_xy(k):
@@ -321,9 +324,9 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     low_x = min(positions[k, 0] for k in candidates)
     low_y = min(positions[k, 1] for k in candidates)
 
-    def key(k, side):
-        x0 = (math.floor(low_x / side) - 1.0) * side
-        y0 = (math.floor(low_y / side) - 1.0) * side
+    def key(k, side, shift=0.0):
+        x0 = (math.floor(low_x / side) - 1.0) * side - shift * side
+        y0 = (math.floor(low_y / side) - 1.0) * side - shift * side
         return (math.floor((positions[k, 0] - x0) * (1.0 / side)),
                 math.floor((positions[k, 1] - y0) * (1.0 / side)))
 
@@ -331,58 +334,69 @@ def mark_object_feet(labels, heights, positions, foot_height, cell, fraction, ri
     for k in range(len(labels)):
         if -noise_depth < heights[k] < 0 and finite_xy(k):
             depths.setdefault(key(k, noise_cell), []).append(-heights[k])
-    marks: dict = {}
-    column_heights: dict = {}  # the heights of each marked column's marks and TERRAIN points
     mark_points = []
     for k in candidates:
         d = depths.get(key(k, noise_cell), [])
         if len(d) >= 3 and heights[k] <= noise_factor * math.sqrt(math.pi / 2) * np.mean(d):
             continue
         mark_points.append(k)
-        marks[key(k, cell)] = marks.get(key(k, cell), 0) + 1
-        column_heights.setdefault(key(k, cell), {"marks": [], "all": []})
-        column_heights[key(k, cell)]["marks"].append(heights[k])
-        column_heights[key(k, cell)]["all"].append(heights[k])
-    objects = {key(k, cell) for k in range(len(labels))
-               if labels[k] == obstacle and heights[k] >= object_height and finite_xy(k)}
-    level: dict = {}
-    terrain_top: dict = {}
-    for k in range(len(labels)):
-        if labels[k] == terrain and finite_xy(k):
-            level[key(k, cell)] = level.get(key(k, cell), 0) + 1
-            if key(k, cell) in column_heights and math.isfinite(heights[k]):
-                column_heights[key(k, cell)]["all"].append(heights[k])
-                terrain_top[key(k, cell)] = max(terrain_top.get(key(k, cell), -math.inf),
-                                                heights[k])
 
-    def no_gap(c):
-        if foot_gap <= 0:
-            return True
-        low = min((k for k in mark_points if key(k, cell) == c), key=lambda k: heights[k])
-        reach = foot_slope * math.hypot(positions[low, 0] - sensor[0],
-                                        positions[low, 1] - sensor[1])
-        return heights[low] - terrain_top.get(c, -math.inf) <= max(foot_gap, reach)
-    changed = 0
-    for k in range(len(labels)):
-        if labels[k] != terrain or not finite_xy(k):
-            continue
-        m = marks.get(key(k, cell), 0)
-        ix, iy = key(k, cell)
-        near = any((ix + dx, iy + dy) in objects for dx in (-1, 0, 1) for dy in (-1, 0, 1))
-        if m > 0 and near and m >= fraction * (m + level[key(k, cell)]) and \
-                max(column_heights[key(k, cell)]["marks"]) \
-                - min(column_heights[key(k, cell)]["all"]) > rise and no_gap(key(k, cell)):
-            labels[k] = obstacle
-            changed += 1
-    if behind_radius > 0:
+    def feet_on(shift):
+        """The TERRAIN points of foot columns on the lattice shifted by ``shift`` columns,
+        and the object test of each column."""
+        def col(k):
+            return key(k, cell, shift)
+        marks: dict = {}
+        column_heights: dict = {}  # each marked column's marks and TERRAIN points
+        for k in mark_points:
+            marks[col(k)] = marks.get(col(k), 0) + 1
+            column_heights.setdefault(col(k), {"marks": [], "all": []})
+            column_heights[col(k)]["marks"].append(heights[k])
+            column_heights[col(k)]["all"].append(heights[k])
+        objects = {col(k) for k in range(len(labels))
+                   if labels[k] == obstacle and heights[k] >= object_height and finite_xy(k)}
+        level: dict = {}
+        terrain_top: dict = {}
+        for k in range(len(labels)):
+            if labels[k] == terrain and finite_xy(k):
+                level[col(k)] = level.get(col(k), 0) + 1
+                if col(k) in column_heights and math.isfinite(heights[k]):
+                    column_heights[col(k)]["all"].append(heights[k])
+                    terrain_top[col(k)] = max(terrain_top.get(col(k), -math.inf), heights[k])
+
+        def no_gap(c):
+            if foot_gap <= 0:
+                return True
+            low = min((k for k in mark_points if col(k) == c), key=lambda k: heights[k])
+            reach = foot_slope * math.hypot(positions[low, 0] - sensor[0],
+                                            positions[low, 1] - sensor[1])
+            return heights[low] - terrain_top.get(c, -math.inf) <= max(foot_gap, reach)
+
         def near_object(k):
-            ix, iy = key(k, cell)
+            ix, iy = col(k)
             return any((ix + dx, iy + dy) in objects for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+        feet = set()
+        for k in range(len(labels)):
+            if labels[k] != terrain or not finite_xy(k):
+                continue
+            m = marks.get(col(k), 0)
+            if m > 0 and near_object(k) and m >= fraction * (m + level[col(k)]) and \
+                    max(column_heights[col(k)]["marks"]) \
+                    - min(column_heights[col(k)]["all"]) > rise and no_gap(col(k)):
+                feet.add(k)
+        return feet, near_object
 
+    # two lattices, the second shifted by half a column: a point goes with a foot of either
+    feet, near_first = feet_on(0.0)
+    feet |= feet_on(0.5)[0]
+    for k in feet:
+        labels[k] = obstacle
+    changed = len(feet)
+    if behind_radius > 0:
         def rng(k):
             return math.hypot(positions[k, 0] - sensor[0], positions[k, 1] - sensor[1])
 
-        shown = [j for j in mark_points if near_object(j)]
+        shown = [j for j in mark_points if near_first(j)]
         for k in range(len(labels)):
             if labels[k] != terrain or not finite_xy(k):
                 continue

@@ -122,13 +122,14 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     (-noise_depth, 0); a noise cell with fewer than 3 of them sets no noise test. Points with
     non-finite coordinates or heights never mark nor match a column. The first pass keeps the
     indices of the candidates and of the tall obstacle points, so the passes for the noise
-    cells, the columns and the objects read only those (the candidates' noise-cell slots
-    kept from the first of them); the terrain points of marked columns are kept as
-    (point, slot) pairs for the last pass. The object test runs last and only for the
-    columns that pass the others and hold terrain points (no other column changes a label;
-    with ``behind_radius`` > 0 for every marked column): the tall points are looked up in the
-    small set of those columns' 3 x 3 neighbourhoods (behind a screen of it) instead of all
-    being inserted into a set of their own.
+    cells, the columns and the objects read only those. The columns lie on two lattices, the
+    second shifted by half a column along x and y; a terrain point goes with a foot column of
+    either (:func:`_foot_columns`, once per lattice on the same labels), so an object's base
+    does not depend on where a lattice's column edge falls on its face. On each, the terrain
+    points of marked columns are kept as (point, slot) pairs, and the object test runs last
+    and only for the columns that pass the others and hold terrain points (with
+    ``behind_radius`` > 0, on the first lattice, for every marked column):
+    :func:`_object_test`.
 
     With ``behind_radius`` > 0, then: the TERRAIN points within ``behind_radius`` (x/y) of a
     mark whose column or one of its 8 neighbours holds an obstacle point at least
@@ -161,11 +162,8 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
             y0 = min(y0, positions[k, 1])
     if count == 0:
         return 0
-    cx0 = _lattice_origin(x0, cell)
-    cy0 = _lattice_origin(y0, cell)
     nx0 = _lattice_origin(x0, noise_cell)
     ny0 = _lattice_origin(y0, noise_cell)
-    inv_cell = 1.0 / cell
     inv_noise = 1.0 / noise_cell
     # the noise cells of the candidates, then the depths of the points below the surface there
     cells, cell_shift, cell_mask = _new_set(count)
@@ -185,8 +183,60 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
                 if s >= 0:
                     depth_sum[s] -= h
                     depth_count[s] += 1
-    # the columns of the candidates that stand out of their cell's noise
-    columns, shift, mask = _new_set(count)
+    # the marks: the candidates that stand out of their cell's noise
+    mark_points = np.empty(count, np.int32)
+    n_marks = 0
+    for c in range(count):
+        k = candidates[c]
+        s = cell_slots[c]
+        if s >= 0 and depth_count[s] >= 3 and \
+                heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
+            continue
+        mark_points[n_marks] = k
+        n_marks += 1
+    mark_points = mark_points[:n_marks]
+    if n_marks == 0 or tall == 0:
+        return 0
+    tall_points = tall_points[:tall]
+    # the columns on two lattices, the second shifted by half a column along x and y: a
+    # column decides for its points on either (an object's face that one lattice's column
+    # straddles lies inside a column of the other); the points of foot columns are kept and
+    # labelled once both are done
+    feet = np.zeros(n, np.bool_)
+    behind = behind_radius > 0.0
+    beside = np.zeros(0, np.bool_)
+    for lattice in range(2):
+        cx0 = _lattice_origin(x0, cell) - 0.5 * lattice * cell
+        cy0 = _lattice_origin(y0, cell) - 0.5 * lattice * cell
+        near_marks = _foot_columns(positions, heights, labels, mark_points, tall_points, cx0,
+                                   cy0, cell, fraction, rise, terrain, sensor_x, sensor_y,
+                                   foot_gap, gap_slope, feet, behind and lattice == 0)
+        if behind and lattice == 0:
+            beside = near_marks
+    changed = 0
+    for k in range(n):
+        if feet[k]:
+            labels[k] = obstacle
+            changed += 1
+    if behind:
+        changed += _behind_marks(positions, labels, mark_points[beside], behind_radius,
+                                 behind_margin, sensor_x, sensor_y, terrain, obstacle)
+    return changed
+
+
+@numba.njit(cache=True)
+def _foot_columns(positions, heights, labels, mark_points, tall_points, cx0, cy0, cell,
+                  fraction, rise, terrain, sensor_x, sensor_y, foot_gap, gap_slope, feet,
+                  want_near):
+    """The feet rule on the lattice of columns of side ``cell`` from (cx0, cy0): ``feet`` is
+    set for the ``terrain`` points of the columns that are a foot (marks enough of the
+    column's points, rising enough, no free space under them, an object in or beside the
+    column). Returns, with ``want_near``, whether each mark's column is beside an object
+    (the object test then runs for every marked column), else an empty array."""
+    n = heights.shape[0]
+    m = mark_points.shape[0]
+    inv_cell = 1.0 / cell
+    columns, shift, mask = _new_set(m)
     marks = np.zeros(columns.size, np.int64)
     level = np.zeros(columns.size, np.int64)
     top = np.full(columns.size, -np.inf)  # the highest mark of a column
@@ -197,104 +247,97 @@ def mark_object_feet(positions, heights, labels, cell, foot_height, fraction, ri
     # a one-bit-per-hash screen of the marked columns (8 KB, in cache): most terrain points
     # are in no marked column and need no look-up in the set
     screen = np.zeros(1024, np.uint64)
-    mark_points = np.empty(count, np.int32)  # the marks and their columns' slots
-    mark_slots = np.empty(count, np.int64)
-    n_marks = 0
-    for c in range(count):
-        k = candidates[c]
-        s = cell_slots[c]
-        if s >= 0 and depth_count[s] >= 3 and \
-                heights[k] <= noise_factor * _HALF_NORMAL * depth_sum[s] / depth_count[s]:
-            continue
+    mark_slots = np.full(m, -1, np.int64)
+    for i in range(m):
+        k = mark_points[i]
         key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
-        if key >= 0:
-            s = _find(columns, shift, mask, key, True)
-            word, bit = _screen_bit(key)
-            screen[word] |= bit
-            marks[s] += 1
-            top[s] = max(top[s], heights[k])
-            bottom[s] = min(bottom[s], heights[k])
-            if heights[k] < lowest_mark[s]:
-                lowest_mark[s] = heights[k]
-                lowest_range[s] = math.hypot(positions[k, 0] - sensor_x,
-                                             positions[k, 1] - sensor_y)
-            mark_points[n_marks] = k
-            mark_slots[n_marks] = s
-            n_marks += 1
-    behind = behind_radius > 0.0 and tall > 0
-    if behind:
-        # the object test for every marked column now (the marks beside an object are the
-        # ones the rule behind the marks uses), then those marks by cells of side
-        # behind_radius and a screen of their reach
-        near = _object_test(positions, columns, columns != _EMPTY, tall_points[:tall], cx0,
-                            cy0, inv_cell)
-        beside = np.empty(n_marks, np.int32)
-        n_beside = 0
-        for i in range(n_marks):
-            if near[mark_slots[i]]:
-                beside[n_beside] = mark_points[i]
-                n_beside += 1
-        (b_cells, b_shift, b_mask, b_start, b_x, b_y, b_r, bx0, by0, b_screen,
-         b_occupied) = _behind_index(positions, beside[:n_beside], behind_radius, sensor_x,
-                                     sensor_y)
-    # the terrain points in marked columns (their slots kept), and with ``behind`` those
-    # within reach of a mark
-    hit_points = candidates  # reused: (point, slot) of the terrain points in marked columns
+        if key < 0:
+            continue
+        s = _find(columns, shift, mask, key, True)
+        mark_slots[i] = s
+        word, bit = _screen_bit(key)
+        screen[word] |= bit
+        marks[s] += 1
+        top[s] = max(top[s], heights[k])
+        bottom[s] = min(bottom[s], heights[k])
+        if heights[k] < lowest_mark[s]:
+            lowest_mark[s] = heights[k]
+            lowest_range[s] = math.hypot(positions[k, 0] - sensor_x,
+                                         positions[k, 1] - sensor_y)
+    # the terrain points in marked columns, with their slots
+    hit_points = np.empty(n, np.int32)
     hit_slots = np.empty(n, np.int32)
     hits = 0
-    behind_points = np.empty(n if behind else 0, np.int32)
-    n_behind = 0
     for k in range(n):
-        if labels[k] == terrain:
-            if behind:
-                key = _key(positions[k, 0], positions[k, 1], bx0, by0, 1.0 / behind_radius)
-                if key >= 0:
-                    word, bit = _wide_screen_bit(key)
-                    if b_screen[word] & bit != 0:
-                        behind_points[n_behind] = k
-                        n_behind += 1
-            key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
-            if key >= 0:
-                word, bit = _screen_bit(key)
-                if screen[word] & bit == 0:
-                    continue
-                s = _find(columns, shift, mask, key, False)
-                if s >= 0:
-                    level[s] += 1
-                    hit_points[hits] = k
-                    hit_slots[hits] = s
-                    hits += 1
-                    if math.isfinite(heights[k]):
-                        bottom[s] = min(bottom[s], heights[k])
-                        highest_terrain[s] = max(highest_terrain[s], heights[k])
-    # the columns where the marks are enough of the points and rise enough (the ones with
-    # terrain points: only those change labels); then the object test for them alone
+        if labels[k] != terrain:
+            continue
+        key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
+        if key < 0:
+            continue
+        word, bit = _screen_bit(key)
+        if screen[word] & bit == 0:
+            continue
+        s = _find(columns, shift, mask, key, False)
+        if s >= 0:
+            level[s] += 1
+            hit_points[hits] = k
+            hit_slots[hits] = s
+            hits += 1
+            if math.isfinite(heights[k]):
+                bottom[s] = min(bottom[s], heights[k])
+                highest_terrain[s] = max(highest_terrain[s], heights[k])
+    # the columns where the marks are enough of the points, rise enough and leave no free
+    # space under them (the ones with terrain points: only those change labels); then the
+    # object test for them (with ``want_near`` for every marked column)
     enough = np.zeros(columns.size, np.bool_)
-    qualified = 0
+    tested = np.zeros(columns.size, np.bool_)
     for s in range(columns.size):
         if columns[s] != _EMPTY and level[s] > 0 and \
                 marks[s] >= fraction * (marks[s] + level[s]) and top[s] - bottom[s] > rise and \
                 (foot_gap <= 0.0 or lowest_mark[s] - highest_terrain[s]
                  <= max(foot_gap, gap_slope * lowest_range[s])):
             enough[s] = True
-            qualified += 1
-    if tall == 0:
-        return 0
-    if not behind:
-        if qualified == 0:
-            return 0
-        near = _object_test(positions, columns, enough, tall_points[:tall], cx0, cy0, inv_cell)
-    changed = 0
+        tested[s] = enough[s] or (want_near and columns[s] != _EMPTY)
+    near = _object_test(positions, columns, tested, tall_points, cx0, cy0, inv_cell)
     for c in range(hits):
         if enough[hit_slots[c]] and near[hit_slots[c]]:
-            labels[hit_points[c]] = obstacle
-            changed += 1
-    if behind:
-        changed += _take_behind(positions, labels, behind_points[:n_behind], b_cells, b_shift,
-                                b_mask, b_start, b_x, b_y, b_r, bx0, by0, b_occupied,
-                                behind_radius, behind_margin, sensor_x, sensor_y, terrain,
-                                obstacle)
-    return changed
+            feet[hit_points[c]] = True
+    if not want_near:
+        return np.zeros(0, np.bool_)
+    near_marks = np.zeros(m, np.bool_)
+    for i in range(m):
+        near_marks[i] = mark_slots[i] >= 0 and near[mark_slots[i]]
+    return near_marks
+
+
+@numba.njit(cache=True)
+def _behind_marks(positions, labels, marks, radius, margin, sensor_x, sensor_y, terrain,
+                  obstacle):
+    """In place: the ``terrain`` points within ``radius`` (x/y) of one of the ``marks`` and at
+    least ``margin`` farther from the sensor (x/y range) than it become ``obstacle``; returns
+    how many. The marks' index (:func:`_behind_index`) screens the points before the
+    look-ups (:func:`_take_behind`)."""
+    if marks.shape[0] == 0:
+        return 0
+    (cells, shift, mask, start, xs, ys, rs, x0, y0, screen,
+     occupied) = _behind_index(positions, marks, radius, sensor_x, sensor_y)
+    n = positions.shape[0]
+    points = np.empty(n, np.int32)
+    count = 0
+    inv = 1.0 / radius
+    for k in range(n):
+        if labels[k] != terrain:
+            continue
+        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv)
+        if key < 0:
+            continue
+        word, bit = _wide_screen_bit(key)
+        if screen[word] & bit != 0:
+            points[count] = k
+            count += 1
+    return _take_behind(positions, labels, points[:count], cells, shift, mask, start, xs, ys,
+                        rs, x0, y0, occupied, radius, margin, sensor_x, sensor_y, terrain,
+                        obstacle)
 
 
 @numba.njit(cache=True)
