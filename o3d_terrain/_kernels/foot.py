@@ -233,7 +233,6 @@ def _foot_columns(positions, heights, labels, mark_points, tall_points, cx0, cy0
     column's points, rising enough, no free space under them, an object in or beside the
     column). Returns, with ``want_near``, whether each mark's column is beside an object
     (the object test then runs for every marked column), else an empty array."""
-    n = heights.shape[0]
     m = mark_points.shape[0]
     inv_cell = 1.0 / cell
     columns, shift, mask = _new_set(m)
@@ -265,19 +264,13 @@ def _foot_columns(positions, heights, labels, mark_points, tall_points, cx0, cy0
             lowest_range[s] = math.hypot(positions[k, 0] - sensor_x,
                                          positions[k, 1] - sensor_y)
     # the terrain points in marked columns, with their slots
-    hit_points = np.empty(n, np.int32)
-    hit_slots = np.empty(n, np.int32)
+    hit_points = _screened(positions, labels, terrain, cx0, cy0, inv_cell, screen, False)
+    hit_slots = np.empty(hit_points.shape[0], np.int32)
     hits = 0
-    for k in range(n):
-        if labels[k] != terrain:
-            continue
-        key = _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell)
-        if key < 0:
-            continue
-        word, bit = _screen_bit(key)
-        if screen[word] & bit == 0:
-            continue
-        s = _find(columns, shift, mask, key, False)
+    for i in range(hit_points.shape[0]):
+        k = hit_points[i]
+        s = _find(columns, shift, mask,
+                  _key(positions[k, 0], positions[k, 1], cx0, cy0, inv_cell), False)
         if s >= 0:
             level[s] += 1
             hit_points[hits] = k
@@ -321,23 +314,30 @@ def _behind_marks(positions, labels, marks, radius, margin, sensor_x, sensor_y, 
         return 0
     (cells, shift, mask, start, xs, ys, rs, x0, y0, screen,
      occupied) = _behind_index(positions, marks, radius, sensor_x, sensor_y)
+    points = _screened(positions, labels, terrain, x0, y0, 1.0 / radius, screen, True)
+    return _take_behind(positions, labels, points, cells, shift, mask, start, xs, ys, rs, x0,
+                        y0, occupied, radius, margin, sensor_x, sensor_y, terrain, obstacle)
+
+
+@numba.njit(cache=True)
+def _screened(positions, labels, terrain, x0, y0, inv_side, screen, wide):
+    """The ``terrain`` points whose cell (side 1 / ``inv_side`` from (x0, y0)) has its bit set
+    in ``screen`` (:func:`_wide_screen_bit` with ``wide``, else :func:`_screen_bit`), in
+    point order: the few a hash set then looks up."""
     n = positions.shape[0]
     points = np.empty(n, np.int32)
     count = 0
-    inv = 1.0 / radius
     for k in range(n):
         if labels[k] != terrain:
             continue
-        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv)
+        key = _key(positions[k, 0], positions[k, 1], x0, y0, inv_side)
         if key < 0:
             continue
-        word, bit = _wide_screen_bit(key)
+        word, bit = _wide_screen_bit(key) if wide else _screen_bit(key)
         if screen[word] & bit != 0:
             points[count] = k
             count += 1
-    return _take_behind(positions, labels, points[:count], cells, shift, mask, start, xs, ys,
-                        rs, x0, y0, occupied, radius, margin, sensor_x, sensor_y, terrain,
-                        obstacle)
+    return points[:count]
 
 
 @numba.njit(cache=True)
