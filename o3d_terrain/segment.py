@@ -424,9 +424,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                                     & (h > 0))
         _take_local_planes(labels, h, p, candidates, labels == TerrainLabel.TERRAIN,
                            misfit_reach(block), threshold)
-    in_cloud = None  # sensor_in_cloud, asked once when needed
-    if use_misfit:
-        in_cloud = sensor_in_cloud(p, sensor_origin)
+    # whether the sensor scans the ground around it: asked once, when the top-down test or
+    # the lidar's rules of the feet need it
+    lines_rules = foot_height > 0 and (foot_lines > 0 or foot_behind > 0)
+    in_cloud = (use_misfit or lines_rules) and sensor_in_cloud(p, sensor_origin)
     if use_misfit and not in_cloud:
         # a top-down scan: every point up to MISFIT_HIGH above the surface and above its
         # threshold measured against the local plane of the terrain around it, within the
@@ -434,11 +435,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         # a finer layout on a top-down scan")
         _top_down_planes(labels, h, p, threshold, block)
     if foot_height > 0:
-        spacing = 0.0
-        if foot_lines > 0 or foot_behind > 0:
-            if in_cloud is None:
-                in_cloud = sensor_in_cloud(p, sensor_origin)
-            spacing = scan_line_spacing(p, sensor_origin) if in_cloud else 0.0
+        spacing = scan_line_spacing(p, sensor_origin) if lines_rules and in_cloud else 0.0
         # behind the marks: on a lidar's scan (lines, and noise that does not grow with range:
         # a stereo pair's depth noise would put ground in front of an object behind it),
         # asked of the data also when the caller set the threshold or its range term

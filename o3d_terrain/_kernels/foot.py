@@ -392,11 +392,12 @@ def _object_test(positions, columns, tested, tall_points, cx0, cy0, inv_cell):
 
 @numba.njit(cache=True)
 def _behind_index(positions, mark_points, radius, sensor_x, sensor_y):
-    """The marks grouped by cells of side ``radius`` (a hash set on a lattice of multiples of
-    the side, so a point's marks within ``radius`` lie in its cell's 3 x 3 neighbourhood):
-    (cells, shift, mask, start, x, y, range from the sensor, x0, y0, reach, occupied): the marks of the cell in slot s at start[s] .. start[s + 1] - 1 of the
-    per-mark arrays, by increasing range, and 128 KB screens of the cells within reach of a mark and of the cells
-    that hold one."""
+    """The marks (at least one) grouped by cells of side ``radius`` (a hash set on a lattice of
+    multiples of the side, so a point's marks within ``radius`` lie in its cell's 3 x 3
+    neighbourhood): (cells, shift, mask, start, x, y, range, x0, y0, screen, occupied). The
+    marks of the cell in slot s are start[s] .. start[s + 1] - 1 of the per-mark arrays x, y
+    and range (from the sensor), by increasing range; the 128 KB screens hold the cells
+    within reach of a mark and the cells that hold one."""
     m = mark_points.shape[0]
     x_low = math.inf
     y_low = math.inf
@@ -404,8 +405,9 @@ def _behind_index(positions, mark_points, radius, sensor_x, sensor_y):
         x_low = min(x_low, positions[mark_points[i], 0])
         y_low = min(y_low, positions[mark_points[i], 1])
     inv = 1.0 / radius
-    x0 = (math.floor(x_low * inv) - 2.0) * radius if m else 0.0  # neighbours' keys >= 0
-    y0 = (math.floor(y_low * inv) - 2.0) * radius if m else 0.0
+    # two cells below the marks: the 3 x 3 neighbourhoods of their cells keep keys >= 0
+    x0 = _lattice_origin(x_low, radius) - radius
+    y0 = _lattice_origin(y_low, radius) - radius
     cells, shift, mask = _new_set(m)
     slot_of = np.empty(m, np.int64)
     start = np.zeros(cells.size + 1, np.int64)
@@ -520,10 +522,11 @@ def _wedge(dx, dy, tan_wedge):
 def scan_line_gaps(positions, sensor_x, sensor_y, sensor_z, tan_wedge, r_min, r_max,
                    min_gap, step):
     """The gaps (rad) between neighbouring elevation angles, seen from the sensor, of every
-    ``step``-th point in 8 narrow wedges around it (:func:`_wedge`) at x/y ranges in [r_min, r_max];
-    gaps of at most ``min_gap`` (points of one scan line, whose elevation is its beam's) are
-    left out. A rotating lidar's points of one azimuth lie on its beams, so the gaps are
-    multiples of the angle between neighbouring scan lines; a camera's are a pixel's."""
+    ``step``-th point in 8 narrow wedges around it (:func:`_wedge`) at x/y ranges in
+    [r_min, r_max]; gaps of at most ``min_gap`` (points of one scan line, whose elevation is
+    its beam's) are left out. A rotating lidar's points of one azimuth lie on its beams, so
+    the gaps are multiples of the angle between neighbouring scan lines; a camera's are a
+    pixel's."""
     n = positions.shape[0]
     chosen = np.empty(n, np.int32)  # the points in a wedge, and their wedges
     wedge_of = np.empty(n, np.int8)
