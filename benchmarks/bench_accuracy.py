@@ -21,7 +21,9 @@
 ``--sensors lidar16``: a sparse 16-channel lidar (:data:`EXTRA_SENSORS`) instead of the default
 sensors, for the synthetic and the steep scenes; ``--sensors high_mount,high_pitched,lidar128,
 low_mount,pitch30,roll25``: lidars mounted as no development scene was, ``spurious``: a
-64-channel lidar with 0.5 % spurious returns (:data:`MOUNTED_LIDARS`).
+64-channel lidar with 0.5 % spurious returns (:data:`MOUNTED_LIDARS`); ``solid_state,
+solid_state_sparse,solid_state_pitched``: forward-looking solid-state lidars with a
+non-repetitive scan (:data:`SOLID_STATE`).
 
 Real scans are read from ``$O3D_TERRAIN_DATA`` or ``../shared/data`` and skipped when absent.
 
@@ -90,7 +92,7 @@ SENSORS = ("lidar", "stereo", "tilt")
 #: over ±15°, 0.2° azimuth steps, like the common 16-line units): rings metres apart on the
 #: ground, what the sparse-scan sections of docs/algorithm.md measure
 EXTRA_SENSORS = ("lidar16", "high_mount", "high_pitched", "lidar128", "low_mount", "pitch30",
-                 "roll25", "spurious")
+                 "roll25", "spurious", "solid_state", "solid_state_sparse", "solid_state_pitched")
 #: spinning lidars mounted as the development scenes never were (``--sensors``), for the
 #: held-out mounting table of docs/algorithm.md: a haul truck's 64-channel unit 3.5 m up
 #: (``high_mount``), the same pitched 12° down (``high_pitched``), a 128-channel ±22.5° unit
@@ -111,6 +113,15 @@ MOUNTED_LIDARS = {
     # beam to 0.5-1.5 times the true range: about half of them below the ground; the
     # outliers are left out of the scores (docs/algorithm.md, "Held-out mountings")
     "spurious": dict(beams=64, azimuth_steps=1200, outlier_fraction=0.005),
+}
+#: forward-looking solid-state lidars with a non-repetitive (rosette) scan, no scan lines
+#: (``sample_solid_state``, 70 degree circular field of view, 1.8 m up): a frame of 100,000
+#: firings, a sparse one of 20,000 (a tenth of a second of a 200 kHz unit), and the dense one
+#: pitched 15 degrees down at the ground ahead (docs/algorithm.md, "A solid-state lidar")
+SOLID_STATE = {
+    "solid_state": dict(points=100_000),
+    "solid_state_sparse": dict(points=20_000),
+    "solid_state_pitched": dict(points=100_000, tilt_deg=(0.0, 15.0)),
 }
 F1_THRESHOLD = 0.2  # m above the surface, fixed for ours and for the exact terrain
 BELOW_THRESHOLD = 0.5  # m below (the segment_points default)
@@ -150,7 +161,7 @@ def steep_scenes() -> dict:
 def synthetic_row(scene_name, sensor: str, method: str) -> dict[str, float]:
     """One table row; ``scene_name`` is a named scene or a Scene."""
     from o3d_terrain.synthetic import (default_obstacles, make_scene, sample_lidar,
-                                       sample_stereo, terrain_rmse)
+                                       sample_solid_state, sample_stereo, terrain_rmse)
 
     scene = make_scene(scene_name, seed=0) if isinstance(scene_name, str) else scene_name
     if not scene.obstacles:  # every scene gets the default obstacle set (offroad has its own)
@@ -163,6 +174,8 @@ def synthetic_row(scene_name, sensor: str, method: str) -> dict[str, float]:
         cloud = sample_lidar(scene, beams=16, fov_deg=(-15.0, 15.0), azimuth_steps=1800, seed=0)
     elif sensor in MOUNTED_LIDARS:
         cloud = sample_lidar(scene, seed=0, **MOUNTED_LIDARS[sensor])
+    elif sensor in SOLID_STATE:
+        cloud = sample_solid_state(scene, seed=0, **SOLID_STATE[sensor])
     else:
         cloud = sample_stereo(scene, seed=0)
     positions = np.asarray(cloud.positions, dtype=np.float64)

@@ -125,6 +125,11 @@ AUTO_RANGE_SAMPLE = 2048
 #: where the range term stops growing (m): objects taller than this (a rock a vehicle must not
 #: drive over; the height the obstacle-recall target counts) stay obstacles at any range
 AUTO_RANGE_HIGH = 0.3
+#: the least-squares growth of the nearer bins' spread (all but the farthest) with r^2 must be
+#: at least this fraction of the growth fitted over all bins (a sensor's noise grows over the
+#: whole range; an object or a crest the surface misses at the far end of the scan raises the
+#: farthest bin alone)
+AUTO_RANGE_NEAR = 0.25
 
 #: the misfit's slope term measures slope against the ground under the sensor: the terrain
 #: points (|h| <= threshold) within this horizontal distance (m) of ``sensor_origin`` ...
@@ -206,8 +211,10 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     the farthest bin is at least :data:`AUTO_RANGE_TOP` times the widest and ``growth`` times
     the narrowest (spreads under :data:`AUTO_RANGE_FLOOR` counted as that), and from no bin to
     the next the spread grows more than :data:`AUTO_RANGE_STEP` times their ratio of r^2 (a
-    face or a ditch the surface misses at one range makes it jump), the sensor's noise
-    grows with range squared (a stereo camera's depth noise) and the coefficient is ``factor``
+    face or a ditch the surface misses at one range makes it jump), and the same fit over all
+    bins but the farthest grows by at least :data:`AUTO_RANGE_NEAR` times c (an object or a
+    crest the surface misses at the far end of the scan raises the farthest bin alone), the
+    sensor's noise grows with range squared (a stereo camera's depth noise) and the coefficient is ``factor``
     x c (:func:`segment_points` stops the threshold's growth at
     :data:`AUTO_RANGE_HIGH`). Otherwise 0: a lidar's spread below the surface is flat with range,
     or grows only where sparse rings leave the ground unsampled and then levels off. 0 too
@@ -235,13 +242,24 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     if not (spread[-1] >= AUTO_RANGE_TOP * spread.max()
             and spread[-1] >= growth * floored.min() and steps.max() <= AUTO_RANGE_STEP):
         return 0.0
-    # least squares s = a + c r^2 over the bins, and how much of the bins' spread it explains
-    x = r2_bins - r2_bins.mean()
-    y = spread - spread.mean()
+    c, explained = _line_fit(r2_bins, spread)
+    if not (c > 0.0 and explained >= fit):
+        return 0.0
+    # ... and the nearer bins grow too: a face or a crest the surface misses at the far end of
+    # the scan (an object on a plateau beyond it) makes the farthest bin jump alone, which a
+    # fit over r^2 (where that bin has the leverage) takes for growth with range
+    c_near, _ = _line_fit(r2_bins[:-1], spread[:-1])
+    return float(factor * c) if c_near >= AUTO_RANGE_NEAR * c else 0.0
+
+
+def _line_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(c, R^2) of the least-squares line y = a + c x: its slope and how much of y's spread
+    it explains."""
+    x = x - x.mean()
+    y = y - y.mean()
     c = float(x @ y) / max(float(x @ x), 1e-12)
     residual = y - c * x
-    explained = 1.0 - float(residual @ residual) / max(float(y @ y), 1e-12)
-    return float(factor * c) if c > 0.0 and explained >= fit else 0.0
+    return c, 1.0 - float(residual @ residual) / max(float(y @ y), 1e-12)
 
 
 def sensor_ground_gradient(surface: TerrainSurface, positions, heights: np.ndarray,

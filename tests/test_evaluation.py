@@ -226,6 +226,12 @@ def test_synthetic_frames_have_truth():
     assert np.nanmedian(np.abs(z - terrain[:, 2])) < 0.05
     bad = list(ds.synthetic_frames(["no_such_scene"]))
     assert isinstance(bad[0], ds.FrameFailure)
+    # the forward-looking solid-state lidar is a vehicle lidar; a misspelt sensor is named
+    solid = next(ds.open_dataset("synthetic:flat:solid_state"))
+    assert solid.name == "flat-solid_state" and solid.kind == "vehicle_lidar"
+    assert solid.positions[:, 0].min() > 0  # everything ahead of the sensor
+    with pytest.raises(InputError, match="did you mean 'solid_state'"):
+        ds.open_dataset("synthetic:flat:solidstate")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -351,3 +351,26 @@ def test_automatic_range_term_ignores_a_jump_and_a_wide_near_bin(monkeypatch):
     sigma = np.where(r > 27.0, 0.9 * (0.01 + 2e-4 * 27.0**2), sigma)  # the farthest a bit less
     stereo = rng.normal(0, sigma)
     assert auto_range_coefficient(p, stereo, 0.13) > 0.0
+
+
+def test_automatic_range_term_ignores_the_farthest_bin_alone(monkeypatch):
+    """A lidar whose ground ends at a crest 9 m out, with an object's face 23 m out that the
+    surface misses (the face's low points below it): the farthest bin's spread jumps alone
+    across the empty ranges, where r^2 grows as much as the spread, so only the growth of the
+    nearer bins tells it from a stereo camera's noise."""
+    import o3d_terrain.segment as segment
+    from o3d_terrain.segment import auto_range_coefficient
+
+    rng = np.random.default_rng(2)
+    near, face = 35_000, 5_000
+    r = np.r_[rng.uniform(2.5, 9.0, near), rng.uniform(22.5, 23.5, face)]
+    a = rng.uniform(-0.6, 0.6, near + face)
+    p = np.c_[r * np.cos(a), r * np.sin(a), np.zeros(near + face)]
+    depth = rng.normal(0, np.where(r > 20.0, 0.06, 0.004))
+    assert auto_range_coefficient(p, depth, 0.13) == 0.0
+    with monkeypatch.context() as m:  # the nearer bins' test is what rejects it
+        m.setattr(segment, "AUTO_RANGE_NEAR", -np.inf)
+        assert auto_range_coefficient(p, depth, 0.13) > 0.0
+    # a stereo camera seen over the same ranges still grows in the nearer bins
+    stereo = rng.normal(0, 0.005 + 1e-4 * r**2)
+    assert auto_range_coefficient(p, stereo, 0.13) > 0.0

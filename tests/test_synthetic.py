@@ -447,3 +447,32 @@ def test_airborne_strip_is_top_down_in_projected_coordinates(offroad):
     assert 0.02 < np.std(noise[:, 2]) < 0.04 and np.std(noise[:, 0]) < 1e-9
     with pytest.raises(InputError, match="scan_angle_deg"):
         sample_airborne(offroad, scan_angle_deg=70.0)
+
+
+def test_solid_state_lidar_looks_ahead_without_scan_lines(offroad):
+    """sample_solid_state: every ray within half the field of view of the sensor's x axis,
+    noise-free terrain points on the terrain, seeds and bad options as sample_lidar's; its
+    rose has no scan lines (neighbouring elevations seen from the sensor a few hundredths of
+    a degree apart, where a 32-channel lidar's lines lie 0.9 degrees apart), so the lidar
+    rules that grow the feet of objects with the line spacing stay near the plain foot height."""
+    from o3d_terrain.segment import scan_line_spacing
+    from o3d_terrain.synthetic import sample_solid_state
+
+    cloud = sample_solid_state(offroad, points=20_000, range_noise=0.0, fov_deg=60.0)
+    p = cloud.positions
+    off_axis = np.degrees(np.arccos(p[:, 0] / np.linalg.norm(p, axis=1)))
+    assert len(p) > 10_000 and off_axis.max() <= 30.0 + 1e-6
+    assert np.all(p[:, 0] > 0)  # ahead of the sensor only
+    world = cloud.to_world(p[~cloud.is_obstacle])
+    np.testing.assert_allclose(world[:, 2], offroad.height(world[:, 0], world[:, 1]), atol=1e-6)
+    assert scan_line_spacing(sample_solid_state(offroad, points=100_000).positions) < 0.2
+    assert scan_line_spacing(sample_lidar(offroad).positions) > 0.8
+    a = sample_solid_state(offroad, points=5_000, seed=3)
+    np.testing.assert_array_equal(a.positions, sample_solid_state(offroad, points=5_000,
+                                                                  seed=3).positions)
+    assert not np.array_equal(a.positions, sample_solid_state(offroad, points=5_000,
+                                                              seed=4).positions)
+    with pytest.raises(InputError, match="points"):
+        sample_solid_state(offroad, points=0)
+    with pytest.raises(InputError, match="fov_deg"):
+        sample_solid_state(offroad, fov_deg=200.0)

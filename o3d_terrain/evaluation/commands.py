@@ -38,7 +38,7 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
         "segmentation", help="ground precision, recall, F1 and obstacle recall per frame",
         description="Score ground segmentation on labelled frames: SemanticKITTI sequence "
                     "folders (velodyne/ + labels/), LAS/LAZ files or folders (class 2 = "
-                    "ground), or synthetic:NAME[,NAME...][:stereo] scenes.")
+                    "ground), or synthetic:NAME[,NAME...][:stereo|:solid_state] scenes.")
     seg.add_argument("datasets", nargs="+", metavar="DATASET")
     seg.add_argument("--method", "-m", action="append", default=[], metavar="NAME",
                      help="o3d_terrain (default) or a peer: " + ", ".join(PEERS)
@@ -55,7 +55,7 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     ter = sub.add_parser(
         "terrain", help="height RMSE and slope error against an exact terrain, with error maps",
         description="Fit the terrain and compare it with an exact one: synthetic:NAME[,NAME..]"
-                    "[:stereo] scenes, or a DEM raster (e.g. dem.tif, sampled into clouds).")
+                    "[:stereo|:solid_state] scenes, or a DEM raster (e.g. dem.tif, sampled into clouds).")
     ter.add_argument("source", metavar="SOURCE")
     ter.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                      help="an option of fit_terrain, e.g. --option control_points=[25,25]")

@@ -20,6 +20,7 @@ Ground sets
 
 from __future__ import annotations
 
+import difflib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -214,11 +215,20 @@ def las_frames(path: str | os.PathLike) -> Iterator[FrameOrFailure]:
 # synthetic scenes
 
 
+#: the sensors of ``synthetic:NAME[:SENSOR]`` (``o3d_terrain.synthetic.sample_SENSOR``)
+SYNTHETIC_SENSORS = ("lidar", "stereo", "solid_state")
+
+
 def synthetic_frames(names: Sequence[str], *, seed: int = 0, sensor: str = "lidar"
                      ) -> Iterator[FrameOrFailure]:
-    """Frames sampled from the project's synthetic scenes (exact terrain and obstacle truth)."""
-    if sensor not in ("lidar", "stereo"):
-        raise InputError(f"synthetic sensor '{sensor}' is not 'lidar' or 'stereo'")
+    """Frames sampled from the project's synthetic scenes (exact terrain and obstacle truth) by
+    one of :data:`SYNTHETIC_SENSORS`: a spinning lidar, a stereo-like depth sensor, or a
+    forward-looking solid-state lidar with a non-repetitive scan (``solid_state``)."""
+    if sensor not in SYNTHETIC_SENSORS:
+        close = difflib.get_close_matches(sensor, SYNTHETIC_SENSORS, n=1)
+        raise InputError(f"synthetic sensor '{sensor}' is not one of "
+                         f"{', '.join(SYNTHETIC_SENSORS)}"
+                         + (f"; did you mean '{close[0]}'?" if close else ""))
     try:
         from .. import synthetic
         make_scene = synthetic.make_scene
@@ -228,6 +238,11 @@ def synthetic_frames(names: Sequence[str], *, seed: int = 0, sensor: str = "lida
             f"the synthetic scene generator (o3d_terrain.synthetic.make_scene/sample_{sensor}) "
             f"is not available in this build ({exc})"
         ) from exc
+    return _synthetic_frames(make_scene, sample, names, seed, sensor)
+
+
+def _synthetic_frames(make_scene, sample, names, seed, sensor) -> Iterator[FrameOrFailure]:
+    """The frames of :func:`synthetic_frames` once its sensor is known to exist."""
     for name in names:
         try:
             scene = make_scene(name, seed=seed)
@@ -244,7 +259,7 @@ def synthetic_frames(names: Sequence[str], *, seed: int = 0, sensor: str = "lida
                 scored=finite,
                 obstacle=obstacle,
                 terrain=_terrain_in_sensor_frame(cloud, scene),
-                kind="vehicle_lidar" if sensor == "lidar" else "stereo",
+                kind="stereo" if sensor == "stereo" else "vehicle_lidar",
                 source=f"synthetic:{name}:seed={seed}",
                 sensor_height=_sensor_height(cloud),
                 range_noise=_stereo_noise() if sensor == "stereo" else None,
@@ -300,7 +315,8 @@ def synthetic_scene_names() -> tuple[str, ...]:
 
 def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = None
                  ) -> Iterator[FrameOrFailure]:
-    """Frames of a dataset given as a path or ``synthetic:NAME[,NAME...][:stereo]``.
+    """Frames of a dataset given as a path or ``synthetic:NAME[,NAME...][:SENSOR]`` (SENSOR one
+    of :data:`SYNTHETIC_SENSORS`, default lidar).
 
     A folder with ``velodyne/`` is read as SemanticKITTI; a LAS/LAZ file or a folder of them as
     ASPRS-classified tiles.

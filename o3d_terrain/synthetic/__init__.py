@@ -31,6 +31,7 @@ from .sensors import (
     sample_airborne,
     sample_lidar,
     sample_sequence,
+    sample_solid_state,
     sample_stereo,
     sensor_pose,
     terrain_rmse,
@@ -43,7 +44,7 @@ __all__ = [
     "Camera", "Hill", "Obstacle", "Plane", "Ramp", "Ridge", "Roughness", "Scene", "StereoPair",
     "SyntheticCloud", "TerrainError", "Valley", "cast", "default_obstacles", "make_scene",
     "render_stereo_pair", "rotation_matrix", "sample_airborne", "sample_lidar", "sample_sequence",
-    "sample_stereo",
+    "sample_solid_state", "sample_stereo",
     "section6_scene", "sensor_pose", "terrain_rmse", "texture", "value_noise",
 ]
 

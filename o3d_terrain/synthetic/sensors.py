@@ -407,6 +407,54 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
                           scene, "lidar", outliers=outliers)
 
 
+def sample_solid_state(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
+                       yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), fov_deg: float = 70.0,
+                       points: int = 100_000, min_range: float = 1.0, max_range: float = 80.0,
+                       range_noise: float = 0.02, outlier_fraction: float = 0.0,
+                       seed: int = 0) -> SyntheticCloud:
+    """A forward-looking solid-state lidar with a non-repetitive (rosette) scan pattern, as
+    the prism-scanning units mounted on small off-road and mining vehicles have.
+
+    ``points`` firings (the frame's integration time times the firing rate: 100,000 is about
+    half a second of a 200 kHz unit) trace a rose of incommensurate rates over a circular field
+    of view ``fov_deg`` wide about the sensor's x axis (azimuth and elevation offsets within
+    ``fov_deg`` / 2 of it): no scan lines, denser at the centre, every ray's direction
+    different. Returns hits between ``min_range`` and ``max_range`` metres with Gaussian range
+    noise of ``range_noise`` metres along the beam, and a fraction ``outlier_fraction`` of
+    spurious returns as :func:`sample_lidar`; poses and frames as :func:`sample_lidar`.
+    """
+    _check_int(points=points)
+    _check_positive(max_range=max_range, sensor_height=sensor_height, fov_deg=fov_deg,
+                    points=points)
+    if fov_deg > 170.0:
+        raise InputError(f"fov_deg must be at most 170 (a forward-looking unit); got {fov_deg}")
+    _check_non_negative(range_noise=range_noise, min_range=min_range)
+    pose = sensor_pose(scene, sensor_xy=sensor_xy, sensor_height=sensor_height, yaw_deg=yaw_deg,
+                       tilt_deg=tilt_deg)
+    # the rose: the beam turns about the axis while its offset swings out to the edge of the
+    # field of view and back, at rates whose ratio is irrational (the pattern never repeats)
+    phase = np.arange(points) * (2 * math.pi * ROSETTE_TURNS / points)
+    offset = math.radians(fov_deg / 2) * np.abs(np.sin(ROSETTE_PETALS * phase))
+    azimuth = offset * np.cos(phase)
+    elevation = offset * np.sin(phase)
+    directions = np.stack([np.cos(elevation) * np.cos(azimuth),
+                           np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=-1)
+    t, index, _ = cast(scene, pose[:3, 3], directions @ pose[:3, :3].T)
+    keep = np.isfinite(t) & (t >= min_range) & (t <= max_range)
+    directions, t, index = directions[keep], t[keep], index[keep]
+    rng = np.random.default_rng(seed)
+    measured = t + rng.normal(0.0, range_noise, len(t)) if range_noise > 0 else t
+    measured, outliers = _spurious(measured, outlier_fraction, rng)
+    return SyntheticCloud(directions * measured[:, None], directions * t[:, None], index, pose,
+                          scene, "lidar", outliers=outliers)
+
+
+#: the rose of :func:`sample_solid_state`: turns of the beam about the axis per frame, and
+#: swings of its offset per radian of turn (irrational: the pattern does not repeat)
+ROSETTE_TURNS = 100
+ROSETTE_PETALS = 3.7 * math.pi
+
+
 #: where :func:`sample_airborne` puts the scene's origin: projected coordinates (UTM-like
 #: metres), as an airborne tile has them, so no point lies near a sensor at (0, 0, 0)
 AIRBORNE_OFFSET = (500000.0, 6600000.0, 100.0)
