@@ -90,7 +90,7 @@ def test_unknown_scene_and_bad_obstacle_are_clear_errors():
     with pytest.raises(InputError, match="did you mean 'offroad'"):
         make_scene("ofroad")
     with pytest.raises(InputError, match="kind"):
-        Obstacle("tree", (0, 0), (1, 1), 1.0)
+        Obstacle("shrub", (0, 0), (1, 1), 1.0)
     with pytest.raises(InputError, match="positive size and height"):
         Obstacle("car", (0, 0), (4, 2), -1.0)
     with pytest.raises(InputError, match="obstacle_height"):
@@ -367,6 +367,9 @@ def test_source_stage_makes_a_frame_with_truth():
     np.testing.assert_array_equal(frame.positions, again.positions)
     stereo = SyntheticScene(scene="flat", sensor="stereo", image_size=[64, 48])()
     assert len(stereo) > 500
+    solid = SyntheticScene(scene="forest", sensor="solid_state", points=5000, fov_deg=40)()
+    assert len(solid) > 2000 and solid.positions[:, 0].min() > 0
+    assert (solid.attribute("ground_truth") == 2).any()  # the forest's trees
 
 
 def test_source_stage_rejects_bad_options():
@@ -476,3 +479,46 @@ def test_solid_state_lidar_looks_ahead_without_scan_lines(offroad):
         sample_solid_state(offroad, points=0)
     with pytest.raises(InputError, match="fov_deg"):
         sample_solid_state(offroad, fov_deg=200.0)
+
+
+def test_forest_trees_have_a_trunk_under_a_crown_and_ground_beneath_it():
+    """The forest scene's trees: from above a ray meets the crown's top where surface_height
+    says; from a point under the crown, 1 m from the trunk, a horizontal ray meets the trunk,
+    a ray up the crown and a ray down the ground (the free space under the crown)."""
+    from o3d_terrain.synthetic import cast
+    from o3d_terrain.synthetic.scene import TREE_CROWN_BASE, TREE_TRUNK_SHARE
+
+    scene = make_scene("forest", seed=0)
+    trees = [(i, o) for i, o in enumerate(scene.obstacles) if o.kind == "tree"]
+    assert len(trees) == 30 and any(o.kind == "rock" for o in scene.obstacles)
+    tested = 0
+    for i, tree in trees:
+        cx, cy = tree.center
+        ground = scene.obstacle_ground(i)
+        # a point 1 m from the trunk under this crown, it and the centre under no other
+        # obstacle's footprint (crowns overlap in the forest)
+        sides = [d for d in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
+                 if sum(bool(o.contains(cx - d[0], cy - d[1], margin=0.2))
+                        or bool(o.contains(cx, cy, margin=0.2)) for o in scene.obstacles) == 1]
+        if not sides:
+            continue
+        tested += 1
+        t, index, _ = cast(scene, np.array([cx, cy, ground + 100.0]),
+                           np.array([[0.0, 0.0, -1.0]]))
+        assert index[0] == i
+        assert ground + 100.0 - t[0] == pytest.approx(scene.surface_height(cx, cy), abs=0.05)
+        assert scene.surface_height(cx, cy) == pytest.approx(ground + tree.height, abs=0.05)
+        dx, dy = sides[0]
+        under = np.array([cx - dx, cy - dy, ground + 0.5 * TREE_CROWN_BASE * tree.height])
+        radius = max(0.15, TREE_TRUNK_SHARE * sum(tree.size) / 2) / 2
+        t, index, _ = cast(scene, under, np.array([[dx, dy, 0.0], [0.0, 0.0, 1.0],
+                                                   [0.0, 0.0, -1.0]]))
+        assert list(index) == [i, i, -1]  # the trunk, the crown, the ground
+        assert t[0] == pytest.approx(1.0 - radius, abs=0.02)
+        # the crown's underside: an ellipsoid from the crown base up
+        u, v = tree._local(under[0], under[1])
+        reach = (1 - TREE_CROWN_BASE) * tree.height / 2
+        r = 1 - (u / (tree.size[0] / 2)) ** 2 - (v / (tree.size[1] / 2)) ** 2
+        underside = ground + TREE_CROWN_BASE * tree.height + reach * (1 - np.sqrt(r))
+        assert under[2] + t[1] == pytest.approx(underside, abs=0.1)  # a 24-segment mesh
+    assert tested >= 10

@@ -4,14 +4,15 @@ from __future__ import annotations
 
 from ..frame import Frame
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
-from ..synthetic import SCENES, make_scene, sample_lidar, sample_stereo
+from ..synthetic import SCENES, make_scene, sample_lidar, sample_solid_state, sample_stereo
 from .base import SourceStage, stage
 from .grid_quantize import check_region
 
 
 @stage
 class SyntheticScene(SourceStage):
-    """Sample a synthetic off-road scene (exact terrain and obstacles) with a lidar or stereo model.
+    """Sample a synthetic off-road scene (exact terrain and obstacles) with a lidar, stereo or
+    solid-state lidar model.
 
     The cloud is in the sensor frame (x forward, y left, z up), so a tilted sensor gives tilted
     data. Each point carries ``ground_truth`` (1 terrain, 2 obstacle, 3 spurious return) and ``obstacle_ids``
@@ -24,9 +25,10 @@ class SyntheticScene(SourceStage):
     writes_attributes = ("ground_truth", "obstacle_ids")
 
     scene: str = option("offroad", choices=tuple(SCENES), help="which scene to generate")
-    sensor: str = option("lidar", choices=("lidar", "stereo"),
+    sensor: str = option("lidar", choices=("lidar", "stereo", "solid_state"),
                          help="lidar: spinning multi-beam; stereo: one point per pixel, depth "
-                              "noise from disparity noise (grows with range²)")
+                              "noise from disparity noise (grows with range²); solid_state: "
+                              "forward-looking lidar with a non-repetitive (rosette) scan")
     seed: int = option(0, rule=Range(0, None), help="seed of the scene's random parts and of the noise")
     obstacles: bool = option(True, help="place the scene's obstacles (false: bare terrain)")
     region: tuple = option(
@@ -41,7 +43,7 @@ class SyntheticScene(SourceStage):
     sensor_height: float = option(1.8, unit="m", rule=POSITIVE,
                                   help="sensor height above the terrain")
     range_noise: float = option(0.02, unit="m", rule=NON_NEGATIVE,
-                                help="lidar: standard deviation of the range noise")
+                                help="lidar, solid_state: standard deviation of the range noise")
     beams: int = option(32, rule=Range(1, 1024), help="lidar: number of beams")
     azimuth_steps: int = option(900, rule=Range(1, 100_000),
                                 help="lidar: firings per revolution")
@@ -54,6 +56,11 @@ class SyntheticScene(SourceStage):
     image_size: tuple = option((320, 240), kind=int, length=2, unit="px", rule=Range(8, 8192),
                                help="stereo: image width and height")
     baseline: float = option(0.3, unit="m", rule=POSITIVE, help="stereo: camera baseline")
+    points: int = option(100_000, rule=Range(1, 10_000_000),
+                         help="solid_state: firings in the frame (100,000: about half a second "
+                              "of a 200 kHz unit)")
+    fov_deg: float = option(70.0, unit="deg", rule=Range(1, 170),
+                            help="solid_state: diameter of the circular field of view")
 
     def read(self) -> Frame:
         scene = make_scene(self.scene, seed=self.seed, obstacles=self.obstacles,
@@ -64,6 +71,12 @@ class SyntheticScene(SourceStage):
                                  azimuth_steps=self.azimuth_steps, range_noise=self.range_noise,
                                  outlier_fraction=self.outlier_fraction,
                                  seed=self.seed)
+        elif self.sensor == "solid_state":
+            cloud = sample_solid_state(scene, sensor_height=self.sensor_height,
+                                       yaw_deg=self.yaw_deg, tilt_deg=self.tilt_deg,
+                                       fov_deg=self.fov_deg, points=self.points,
+                                       range_noise=self.range_noise,
+                                       outlier_fraction=self.outlier_fraction, seed=self.seed)
         else:
             cloud = sample_stereo(scene, camera_height=self.sensor_height, yaw_deg=self.yaw_deg,
                                   tilt_deg=self.tilt_deg, width=self.image_size[0],

@@ -26,7 +26,13 @@ OBSTACLE_SHAPES = {
     "pedestrian": "cylinder",
     "pole": "cylinder",
     "rock": "ellipsoid",
+    "tree": "tree",
 }
+
+#: a tree's crown starts this share of its height above the ground (its trunk below), and its
+#: trunk's diameter is this share of the crown's mean diameter (at least 0.15 m)
+TREE_CROWN_BASE = 0.45
+TREE_TRUNK_SHARE = 0.08
 
 #: how far an obstacle's mesh reaches below the lowest terrain under its footprint (metres)
 _SINK = 0.3
@@ -41,7 +47,11 @@ class Obstacle:
     its top above the terrain at its centre; ``velocity`` (m/s, world x and y) moves it with
     :meth:`at_time`. Boxes (car, truck, box) are vertical prisms with a flat top; cylinders
     (pedestrian, pole) likewise; a rock is the upper half of an ellipsoid centred on the
-    terrain at ``center`` (semi-axes length/2, width/2, height).
+    terrain at ``center`` (semi-axes length/2, width/2, height). A tree is a vertical trunk
+    (a cylinder :data:`TREE_TRUNK_SHARE` of the crown's diameter wide) under an ellipsoidal
+    crown ``size`` wide that spans from :data:`TREE_CROWN_BASE` of ``height`` to ``height``
+    (the free space under the crown is an overhang a vehicle's lidar sees ground through);
+    its footprint is the crown's.
     """
 
     kind: str
@@ -178,7 +188,8 @@ class Scene:
     def surface_height(self, x, y) -> np.ndarray:
         """Height of the top visible surface: terrain, or obstacle top inside a footprint.
 
-        For rocks the ellipsoid's own height is used. A reference for occupancy maps.
+        For rocks the ellipsoid's own height is used, for trees their crown's top. A reference
+        for occupancy maps.
         """
         x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
                                    np.asarray(y, dtype=np.float64))
@@ -187,10 +198,14 @@ class Scene:
             inside = obstacle.contains(x, y)
             if not inside.any():
                 continue
-            if obstacle.shape == "ellipsoid":
+            if obstacle.shape in ("ellipsoid", "tree"):
                 u, v = obstacle._local(x[inside], y[inside])
                 r = 1.0 - (u / (obstacle.size[0] / 2)) ** 2 - (v / (obstacle.size[1] / 2)) ** 2
-                top = self.obstacle_ground(i) + obstacle.height * np.sqrt(np.clip(r, 0, None))
+                if obstacle.shape == "ellipsoid":
+                    centre, reach = self.obstacle_ground(i), obstacle.height
+                else:
+                    centre, reach = _crown(obstacle, self.obstacle_ground(i))
+                top = centre + reach * np.sqrt(np.clip(r, 0, None))
             else:
                 top = np.full(int(inside.sum()), self.obstacle_top(i))
             z[inside] = np.maximum(z[inside], top)
@@ -244,11 +259,24 @@ class Scene:
         top = ground + obstacle.height
         if obstacle.shape == "ellipsoid":
             return _ellipsoid(obstacle, ground, segments)
+        if obstacle.shape == "tree":
+            return self._tree_mesh_arrays(obstacle, ground, segments)
         outline = obstacle.footprint(segments)
         fx = np.concatenate([outline[:, 0], [obstacle.center[0]]])
         fy = np.concatenate([outline[:, 1], [obstacle.center[1]]])
         bottom = float(self.height(fx, fy).min()) - _SINK
         return _prism(outline, bottom, top)
+
+    def _tree_mesh_arrays(self, obstacle: Obstacle, ground: float, segments: int):
+        """A tree's trunk (from below the terrain to the crown's centre) and crown."""
+        centre, reach = _crown(obstacle, ground)
+        trunk = replace(obstacle, kind="pole", size=(_trunk_diameter(obstacle),) * 2)
+        outline = trunk.footprint(segments)
+        bottom = float(self.height(outline[:, 0], outline[:, 1]).min()) - _SINK
+        v1, t1 = _prism(outline, bottom, centre)
+        crown = replace(obstacle, kind="rock", height=reach)
+        v2, t2 = _ellipsoid(crown, centre, segments)
+        return np.concatenate([v1, v2]), np.concatenate([t1, t2 + len(v1)])
 
     def mesh(self) -> o3d.t.geometry.TriangleMesh:
         """Terrain and obstacles as one tensor triangle mesh (float64 vertices)."""
@@ -303,6 +331,17 @@ def _prism(outline: np.ndarray, bottom: float, top: float) -> tuple[np.ndarray, 
         triangles += [[2 * k + 1, k + i, k + j]]  # top
         triangles += [[2 * k, j, i]]  # bottom
     return vertices, np.array(triangles)
+
+
+def _crown(tree: Obstacle, ground: float) -> tuple[float, float]:
+    """(z of the centre, vertical semi-axis) of a tree's crown standing on ``ground``."""
+    base = ground + TREE_CROWN_BASE * tree.height
+    top = ground + tree.height
+    return (base + top) / 2, (top - base) / 2
+
+
+def _trunk_diameter(tree: Obstacle) -> float:
+    return max(0.15, TREE_TRUNK_SHARE * (tree.size[0] + tree.size[1]) / 2)
 
 
 def _ellipsoid(obstacle: Obstacle, ground: float, segments: int) -> tuple[np.ndarray, np.ndarray]:
@@ -411,6 +450,31 @@ def _offroad(rng):
     return features, _obstacle_set(rng)
 
 
+def _forest(rng):
+    """A steep forested hillside: the ground rises 25° across the track (y), with a gully
+    along it and a knoll; trees and bushes (low ellipsoids) everywhere but within 4 m of the
+    sensor."""
+    features = (Plane(slope_x=0.05, slope_y=math.tan(math.radians(25.0))),
+                Ridge(0.0, -5.0, 0.0, -1.0, 1.2), Hill(22.0, 7.0, 2.5, 5.0, 4.0),
+                Roughness.random(rng, amplitude=0.05))
+    obstacles = []
+    while len(obstacles) < 40:
+        x, y = float(rng.uniform(-3.0, 34.0)), float(rng.uniform(-14.0, 14.0))
+        if math.hypot(x, y) < 4.0:
+            continue
+        if len(obstacles) < 30:
+            width = float(rng.uniform(3.0, 6.0))
+            obstacles.append(Obstacle("tree", (x, y), (width, width * float(rng.uniform(0.8, 1.2))),
+                                      float(rng.uniform(8.0, 16.0)),
+                                      yaw_deg=float(rng.uniform(0.0, 180.0))))
+        else:
+            width = float(rng.uniform(1.0, 2.5))
+            obstacles.append(Obstacle("rock", (x, y), (width, width * float(rng.uniform(0.6, 1.0))),
+                                      float(rng.uniform(0.5, 1.4)),
+                                      yaw_deg=float(rng.uniform(0.0, 180.0))))
+    return features, tuple(obstacles)
+
+
 def _crossing(rng):
     """Moving obstacles for sequences: a pedestrian crossing, a car coming, a truck leaving."""
     features = (Plane(slope_x=0.01), Hill(26.0, 10.0, 1.5, 4.0, 3.0),
@@ -436,6 +500,7 @@ _BUILDERS = {
     "mounds": _gravel_mounds,
     "offroad": _offroad,
     "crossing": _crossing,
+    "forest": _forest,
 }
 
 #: the named scenes and what they hold
@@ -451,6 +516,8 @@ SCENES: dict[str, str] = {
     "crossing": "gentle slope and a hill; a pedestrian crossing (1.4 m/s), an oncoming car "
                 "(6 m/s), a truck driving away (4 m/s), a static pole and rock (for sequences)",
     "section6": "the paper's Sec. VI: flat road, one box at (11, 0); 22 m x 22 m",
+    "forest": "a 25° hillside with a gully and a knoll under 30 trees (8-16 m, crowns from "
+              "45 % of their height) and 10 bushes (seeded)",
 }
 
 
@@ -458,7 +525,7 @@ def make_scene(name: str = "offroad", *, seed: int = 0, obstacles: bool = True,
                region=None) -> Scene:
     """The named scene (see :data:`SCENES`), deterministic in ``seed``.
 
-    ``obstacles=False`` gives the bare terrain. Only ``offroad``, ``crossing`` and
+    ``obstacles=False`` gives the bare terrain. Only ``offroad``, ``crossing``, ``forest`` and
     ``section6`` have obstacles; add some with :meth:`Scene.with_obstacles` (for example
     :func:`default_obstacles`). ``region`` (x_min, x_max, y_min, y_max) in metres replaces
     the default 40 m × 30 m extent (the terrain is defined everywhere; a larger region gives
