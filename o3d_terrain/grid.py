@@ -21,6 +21,8 @@ FILLED = _grid.FILLED
 
 #: the most cells a grid may have (a typo'd cell size should fail, not exhaust memory)
 MAX_CELLS = 50_000_000
+#: a region wider than this (m) in the too-many-cells error gets a hint about millimetres
+UNIT_HINT_SPAN = 20_000.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,9 +176,13 @@ def quantize_points(
         raise InputError(f"region {tuple(region)} is degenerate: x_max must be >= x_min and y_max >= y_min")
     nx, ny = grid_shape(region, cell_size)
     if nx * ny > MAX_CELLS:
+        span = max(x_max - x_min, y_max - y_min)
         raise InputError(
             f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
+            + (f" (the region spans {span / 1000:,.0f} km: if the coordinates are millimetres, "
+               "scale the cloud to metres, e.g. positions / 1000)" if span > UNIT_HINT_SPAN
+               else "")
         )
     if not (isinstance(layer, (int, float, np.integer, np.floating)) and math.isfinite(layer)
             and layer >= 0):

@@ -125,8 +125,12 @@ def test_bad_inputs_have_clear_errors():
         quantize_points(np.zeros((0, 3)), cell_size=1.0)
     with pytest.raises(InputError, match="no finite point"):
         quantize_points(np.full((4, 3), np.nan), cell_size=1.0)
-    with pytest.raises(InputError, match="cells"):
-        quantize_points(np.array([[0, 0, 0], [1e6, 1e6, 0.0]]), cell_size=0.01)
+    with pytest.raises(InputError, match="cells") as error:
+        quantize_points(np.array([[0, 0, 0], [1e3, 1e3, 0.0]]), cell_size=0.01)
+    assert "millimetres" not in str(error.value)
+    # a 60 m scan in millimetres spans 60 km: the error says how to scale it
+    with pytest.raises(InputError, match=r"spans 60 km: if the coordinates are millimetres"):
+        quantize_points(np.array([[-30e3, -20e3, 0], [30e3, 20e3, 0.0]]), cell_size=0.5)
     with pytest.raises(ConfigError, match="x_max > x_min"):
         GridQuantize(region=(1, 0, 0, 1))
 
