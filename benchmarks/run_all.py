@@ -329,9 +329,10 @@ def worker_main(task_json: str) -> int:
     try:
         try:
             from threadpoolctl import threadpool_limits as limits
-            context = limits(limits=int(os.environ.get("OMP_NUM_THREADS", "1")))
+            # applied when made; they hold until the worker exits
+            _limits = limits(limits=int(os.environ.get("OMP_NUM_THREADS", "1")))
         except ImportError:
-            context = None
+            pass
         result = WORKERS[task["task"]](task)
         print("@@RESULT@@" + json.dumps(result, default=float))
     except Exception as exc:

@@ -622,6 +622,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
     coarse = measured_cells if filled.size else cells
     coarse_surface = np.zeros(coarse.size)
     coarse_denominators = np.zeros(coarse.size)
+    last_fit = None  # (basis, Q, R) of the last layout fitted, for the finest one's filled cells
     for level, n in enumerate(layouts):
         knots = None
         if densities is not None:
