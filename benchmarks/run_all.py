@@ -481,8 +481,8 @@ def main(argv=None) -> int:
     parser.add_argument("--timeout", type=float, default=240.0, help="seconds per measurement")
     parser.add_argument("--quick", action="store_true", help="2 repeats")
     parser.add_argument("--only", nargs="*", help="only these data sets (kitti, kitti-tilt, "
-                        "kitti-lines, las, synthetic, synthetic-solid, lidar120k, stereo300k, paper34x22, "
-                        "las700k, kitti1, terrain)")
+                        "kitti-lines, las, synthetic, synthetic-solid, lidar120k, stereo300k, "
+                        "paper34x22, las700k, kitti1, terrain)")
     parser.add_argument("--json", metavar="PATH", help="also write the raw results as JSON")
     parser.add_argument("--from-json", metavar="PATH", help="render docs from saved results")
     parser.add_argument("--worker", help=argparse.SUPPRESS)

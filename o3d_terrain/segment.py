@@ -214,8 +214,8 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     face or a ditch the surface misses at one range makes it jump), and the same fit over all
     bins but the farthest grows by at least :data:`AUTO_RANGE_NEAR` times c (an object or a
     crest the surface misses at the far end of the scan raises the farthest bin alone), the
-    sensor's noise grows with range squared (a stereo camera's depth noise) and the coefficient is ``factor``
-    x c (:func:`segment_points` stops the threshold's growth at
+    sensor's noise grows with range squared (a stereo camera's depth noise) and the coefficient
+    is ``factor`` x c (:func:`segment_points` stops the threshold's growth at
     :data:`AUTO_RANGE_HIGH`). Otherwise 0: a lidar's spread below the surface is flat with range,
     or grows only where sparse rings leave the ground unsampled and then levels off. 0 too
     when fewer than ``min_points`` of those points lie within

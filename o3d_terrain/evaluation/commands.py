@@ -55,7 +55,8 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     ter = sub.add_parser(
         "terrain", help="height RMSE and slope error against an exact terrain, with error maps",
         description="Fit the terrain and compare it with an exact one: synthetic:NAME[,NAME..]"
-                    "[:stereo|:solid_state] scenes, or a DEM raster (e.g. dem.tif, sampled into clouds).")
+                    "[:stereo|:solid_state] scenes, or a DEM raster (e.g. dem.tif, sampled "
+                    "into clouds).")
     ter.add_argument("source", metavar="SOURCE")
     ter.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                      help="an option of fit_terrain, e.g. --option control_points=[25,25]")
