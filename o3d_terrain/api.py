@@ -224,7 +224,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG,
                     cell_plane: bool = True, refine: bool = True,
                     knots: str = "auto",
-                    foot_lines: float = FOOT_LINES) -> tuple[TerrainSurface, np.ndarray]:
+                    foot_lines: float = FOOT_LINES,
+                    line_of_sight: bool = True) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -245,7 +246,10 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     inliers; 0 = off (:func:`o3d_terrain.segment.mark_object_feet`); on a rotating lidar's
     scan around ``sensor_origin`` the foot height grows with range to ``foot_lines`` times the
     height between neighbouring scan lines on a vertical face there, at most 1.5 m (0 = the
-    same at every range; :func:`o3d_terrain.segment.scan_line_spacing`). ``sensor_origin``: where
+    same at every range; :func:`o3d_terrain.segment.scan_line_spacing`). With
+    ``line_of_sight`` (and the sensor in the cloud), terrain points above the sensor that the
+    surface would hide from it are obstacles (:func:`o3d_terrain.segment.out_of_sight`: an
+    object beyond a crest whose own ground is not seen). ``sensor_origin``: where
     the sensor is in the cloud's coordinates (the default (0, 0, 0) is a cloud in the sensor's
     own frame; give it for a scan moved into a map or world frame): the range of the
     thresholds and of ``range_noise``, and the ground around it defines level for the misfit's
@@ -261,7 +265,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,
-                       foot_height=foot_height, foot_lines=foot_lines)
+                       foot_height=foot_height, foot_lines=foot_lines,
+                       line_of_sight=line_of_sight)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots)

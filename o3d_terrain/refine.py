@@ -52,9 +52,11 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     p = np.ascontiguousarray(positions, dtype=np.float64)
     # without the feet of objects: they lie within the threshold, and the cell samples (eq. 1
     # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
-    # "Refit on the terrain points")
+    # "Refit on the terrain points"); without the line-of-sight test, whose points the refit
+    # then left to the penalty and which cost a pitched solid-state frame (docs/algorithm.md,
+    # "Ground the sensor could not see")
     labels, _ = segment_points(surface, p, threshold=None, sensor_origin=sensor_origin,
-                               foot_height=0.0)
+                               foot_height=0.0, line_of_sight=False)
     terrain = np.compress(labels == TerrainLabel.TERRAIN, p, axis=0)  # ~3x faster than p[mask]
     n0, n1 = surface.control_points.shape
     if len(terrain) == 0:

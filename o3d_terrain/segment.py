@@ -40,7 +40,8 @@ from .misfit import (
 from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
-           "label_heights", "mark_object_feet", "relabel_along_normal", "scan_line_spacing",
+           "label_heights", "mark_object_feet", "out_of_sight", "relabel_along_normal",
+           "scan_line_spacing",
            "segment_points", "sensor_ground_gradient", "sensor_in_cloud", "thresholds",
            "widen_labels"]
 
@@ -87,6 +88,16 @@ FOOT_BEHIND_MARGIN = 0.13
 #: (a car's body, a branch), where the ground below is seen (docs/algorithm.md, "Free space
 #: under an overhang")
 FOOT_GAP = 0.15
+#: :func:`out_of_sight`: a point above the sensor is terrain only where the surface rises away
+#: from the sensor, along the line of sight, at least this many degrees less steeply than the
+#: line of sight itself (ground above a ground-based sensor is seen only where it faces it;
+#: the margin covers the surface's slope error, docs/algorithm.md, "Ground the sensor could
+#: not see")
+SIGHT_MARGIN_DEG = 5.0
+#: ... and only when the TERRAIN points within :data:`SENSOR_GROUND_RADIUS` of the sensor lie
+#: at least this far (m, their median) below it: a sensor that scans the ground from above it,
+#: not a frame whose origin sits on the ground (a vehicle's base frame, a tile's corner)
+SIGHT_MIN_HEIGHT = 0.3
 #: :func:`scan_line_spacing`: the wedges' half-width (deg), the ranges they cover (m), the
 #: largest elevation gap within one scan line (deg), the fewest gaps for an estimate and the
 #: most points it reads (every k-th point of larger clouds)
@@ -345,7 +356,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                    along_normal: bool = True, foot_height: float = FOOT_HEIGHT,
                    foot_cell: float = FOOT_CELL, foot_lines: float = FOOT_LINES,
                    foot_behind: float = FOOT_BEHIND,
-                   foot_gap: float = FOOT_GAP) -> tuple[np.ndarray, np.ndarray]:
+                   foot_gap: float = FOOT_GAP,
+                   line_of_sight: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -385,6 +397,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     foot_gap: a column whose lowest mark lies more than this (m), or ``foot_lines`` scan-line
         gaps at its range, above its highest TERRAIN point is free space under an overhang,
         not a foot; 0 = off.
+    line_of_sight: where the sensor scans the ground around it, TERRAIN points above the
+        sensor that the surface would hide from it become OBSTACLE (:func:`out_of_sight`: an
+        object beyond a crest or a hill whose ground the sensor cannot see, which the
+        surface then runs through).
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -445,7 +461,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     # whether the sensor scans the ground around it: asked once, when the top-down test or
     # the lidar's rules of the feet need it
     lines_rules = foot_height > 0 and (foot_lines > 0 or foot_behind > 0)
-    in_cloud = (use_misfit or lines_rules) and sensor_in_cloud(p, sensor_origin)
+    in_cloud = (use_misfit or lines_rules or line_of_sight) and sensor_in_cloud(p, sensor_origin)
     if use_misfit and not in_cloud:
         # a top-down scan: every point up to MISFIT_HIGH above the surface and above its
         # threshold measured against the local plane of the terrain around it, within the
@@ -466,7 +482,49 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                          noise_depth=below_threshold, line_spacing=spacing,
                          foot_lines=foot_lines, sensor_origin=sensor_origin,
                          behind_radius=behind, foot_gap=foot_gap)
+    if line_of_sight and in_cloud and isinstance(surface, TerrainSurface):
+        labels[out_of_sight(surface, p, labels, sensor_origin)] = TerrainLabel.OBSTACLE
     return labels, h
+
+
+def out_of_sight(surface: TerrainSurface, positions, labels: np.ndarray,
+                 sensor_origin=(0.0, 0.0, 0.0), *,
+                 margin_deg: float = SIGHT_MARGIN_DEG) -> np.ndarray:
+    """Indices of the TERRAIN points above the sensor that the surface would hide from it.
+
+    A ground-based sensor sees the ground above it only where the ground faces it: along the
+    line of sight, at elevation angle e, the ground must rise away from the sensor more
+    steeply than the line itself (slope angle > e); where the surface at a point rises less
+    steeply than that, by more than ``margin_deg``, a terrain point there would be seen from
+    below, through the ground. Such a point is not ground on that surface: the upper part of
+    an object beyond a crest or a hill, whose own ground the sensor does not see and which
+    the surface, with no other data there, runs through. Only points higher than the
+    sensor are tested (few on a level scan): below it, the surface's slope where the data
+    end (the last ring of a scan, the edge of an occlusion) can be off by more than the
+    margin. The test needs the sensor's height: it runs only when the terrain points within
+    :data:`SENSOR_GROUND_RADIUS` of it lie :data:`SIGHT_MIN_HEIGHT` or more below it (their
+    median); a frame whose origin sits on the ground (a vehicle's base frame without
+    ``sensor_origin``) gets no test. Measured in docs/algorithm.md, "Ground the sensor could
+    not see"."""
+    p = _positions(positions)
+    sx, sy, sz = (float(v) for v in sensor_origin)
+    terrain = labels == TerrainLabel.TERRAIN
+    around = terrain & ((p[:, 0] - sx) ** 2 + (p[:, 1] - sy) ** 2 <= SENSOR_GROUND_RADIUS ** 2)
+    if np.count_nonzero(around) < SENSOR_GROUND_MIN_POINTS or \
+            not np.median(p[around, 2]) <= sz - SIGHT_MIN_HEIGHT:
+        return np.zeros(0, np.int64)  # no sensor above the ground there: its height is unknown
+    candidates = np.flatnonzero(terrain & (p[:, 2] > sz))
+    dx = p[candidates, 0] - sx
+    dy = p[candidates, 1] - sy
+    r = np.hypot(dx, dy)
+    near = r > 0.0
+    candidates, dx, dy, r = candidates[near], dx[near], dy[near], r[near]
+    if candidates.size == 0:
+        return candidates
+    gx, gy = surface.gradient(p[candidates, 0], p[candidates, 1])
+    rise = np.arctan((gx * dx + gy * dy) / r)  # the surface's slope along the line of sight
+    elevation = np.arctan2(p[candidates, 2] - sz, r)
+    return candidates[rise < elevation - math.radians(margin_deg)]
 
 
 def _top_down_planes(labels: np.ndarray, h: np.ndarray, p: np.ndarray, threshold: float,

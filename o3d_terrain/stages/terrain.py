@@ -225,7 +225,9 @@ class Segmenter(Stage):
     points within foot_behind of such a low obstacle point beside an object, 0.13 m or more
     farther from the sensor, lie behind the object's low part and become OBSTACLE too. A
     column whose lowest obstacle point lies more than foot_gap above its terrain points is
-    free space under an overhang (a car's body) and no foot.
+    free space under an overhang (a car's body) and no foot. Where the sensor scans the
+    ground around it, terrain points above it that the surface would hide from it (an object
+    beyond a crest whose own ground is not seen) become OBSTACLE (line_of_sight).
     """
 
     reads = ("surface",)
@@ -290,6 +292,14 @@ class Segmenter(Stage):
              "space under an overhang (a car's body, a branch), not the foot of an object: its "
              "ground stays terrain; 0 = off",
     )
+    line_of_sight: bool = option(
+        True,
+        help="where the sensor scans the ground around sensor_origin, terrain points above "
+             "the sensor that the surface would hide from it (it rises along the line of "
+             "sight less steeply than the line, by over 5 deg) become obstacles: an object "
+             "beyond a crest or a hill whose own ground is not seen "
+             "(o3d_terrain.segment.out_of_sight)",
+    )
 
     def run(self, frame: Frame) -> Frame:
         labels, heights = self.label(frame.product("surface"), frame.positions)
@@ -312,4 +322,5 @@ class Segmenter(Stage):
                               misfit=self.misfit_threshold, along_normal=self.along_normal,
                               foot_height=self.foot_height,
                               foot_cell=self.foot_cell, foot_lines=self.foot_lines,
-                              foot_behind=self.foot_behind, foot_gap=self.foot_gap)
+                              foot_behind=self.foot_behind, foot_gap=self.foot_gap,
+                              line_of_sight=self.line_of_sight)
