@@ -98,6 +98,8 @@ SIGHT_MARGIN_DEG = 5.0
 #: at least this far (m, their median) below it: a sensor that scans the ground from above it,
 #: not a frame whose origin sits on the ground (a vehicle's base frame, a tile's corner)
 SIGHT_MIN_HEIGHT = 0.3
+#: ... measured on every k-th point, k = max(1, count // this)
+SIGHT_SAMPLE = 20_000
 #: :func:`scan_line_spacing`: the wedges' half-width (deg), the ranges they cover (m), the
 #: largest elevation gap within one scan line (deg), the fewest gaps for an estimate and the
 #: most points it reads (every k-th point of larger clouds)
@@ -507,24 +509,16 @@ def out_of_sight(surface: TerrainSurface, positions, labels: np.ndarray,
     ``sensor_origin``) gets no test. Measured in docs/algorithm.md, "Ground the sensor could
     not see"."""
     p = _positions(positions)
-    sx, sy, sz = (float(v) for v in sensor_origin)
-    terrain = labels == TerrainLabel.TERRAIN
-    around = terrain & ((p[:, 0] - sx) ** 2 + (p[:, 1] - sy) ** 2 <= SENSOR_GROUND_RADIUS ** 2)
-    if np.count_nonzero(around) < SENSOR_GROUND_MIN_POINTS or \
-            not np.median(p[around, 2]) <= sz - SIGHT_MIN_HEIGHT:
-        return np.zeros(0, np.int64)  # no sensor above the ground there: its height is unknown
-    candidates = np.flatnonzero(terrain & (p[:, 2] > sz))
-    dx = p[candidates, 0] - sx
-    dy = p[candidates, 1] - sy
-    r = np.hypot(dx, dy)
-    near = r > 0.0
-    candidates, dx, dy, r = candidates[near], dx[near], dy[near], r[near]
-    if candidates.size == 0:
-        return candidates
-    gx, gy = surface.gradient(p[candidates, 0], p[candidates, 1])
-    rise = np.arctan((gx * dx + gy * dy) / r)  # the surface's slope along the line of sight
-    elevation = np.arctan2(p[candidates, 2] - sz, r)
-    return candidates[rise < elevation - math.radians(margin_deg)]
+    tol_x, tol_y = surface._tolerances()
+    return _bs.out_of_sight(
+        p, np.ascontiguousarray(labels, dtype=np.uint8), int(TerrainLabel.TERRAIN),
+        float(sensor_origin[0]), float(sensor_origin[1]), float(sensor_origin[2]),
+        math.tan(math.radians(margin_deg)), float(SENSOR_GROUND_RADIUS),
+        max(1, SENSOR_GROUND_MIN_POINTS // max(1, len(p) // SIGHT_SAMPLE)),
+        float(SIGHT_MIN_HEIGHT),
+        max(1, len(p) // SIGHT_SAMPLE), float(surface.origin[0]), float(surface.origin[1]),
+        tol_x, tol_y, surface.knots_x, surface.knots_y, int(surface.degree),
+        surface.control_points, surface.weights)
 
 
 def _top_down_planes(labels: np.ndarray, h: np.ndarray, p: np.ndarray, threshold: float,

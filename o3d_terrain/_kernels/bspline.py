@@ -775,6 +775,78 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
     return changed
 
 
+@numba.njit(cache=True, error_model="numpy")
+def out_of_sight(positions, labels, terrain, sensor_x, sensor_y, sensor_z, tan_margin, radius,
+                 min_points, min_height, step, origin_x, origin_y, tol_x, tol_y, knots_x,
+                 knots_y, degree, control, weights):
+    """The indices of the ``terrain`` points higher than the sensor where the surface's slope
+    along the line of sight, g (rise per metre away from the sensor), is less than
+    tan(e - margin), e the point's elevation angle from the sensor (tan_margin = tan margin):
+    ground there would be seen through the surface. Empty when fewer than ``min_points``
+    terrain points among every ``step``-th point lie within ``radius`` (x/y) of the sensor,
+    or when their median height is not at least ``min_height`` below it. Points outside
+    the knot range widened by ``tol_x``/``tol_y``, or with a non-finite gradient, are kept.
+    The gradient: for degree 3 from the span pairs' bicubic A and D
+    (:func:`_cubic_span_gradient`), else as :func:`rational_surface_points`."""
+    n = positions.shape[0]
+    # the ground around the sensor, from every step-th point
+    around = np.empty(n // step + 1)
+    m = 0
+    r2_max = radius * radius
+    for k in range(0, n, step):
+        if labels[k] != terrain:
+            continue
+        dx = positions[k, 0] - sensor_x
+        dy = positions[k, 1] - sensor_y
+        if dx * dx + dy * dy <= r2_max and math.isfinite(positions[k, 2]):
+            around[m] = positions[k, 2]
+            m += 1
+    if m < min_points or not np.median(around[:m]) <= sensor_z - min_height:
+        return np.empty(0, np.int64)
+    p = degree
+    n0 = control.shape[0]
+    n1 = control.shape[1]
+    lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
+    coef = _span_coefficients(knots_x, knots_y, p, control, weights)
+    lx = span_lookup(knots_x, n0, p)
+    ly = span_lookup(knots_y, n1, p)
+    bx = np.empty(p + 1)
+    by = np.empty(p + 1)
+    dbx = np.zeros(p + 1)
+    dby = np.zeros(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    out = np.empty(n, np.int64)
+    count = 0
+    for k in range(n):
+        dz = positions[k, 2] - sensor_z
+        if labels[k] != terrain or not dz > 0.0:
+            continue
+        dx = positions[k, 0] - sensor_x
+        dy = positions[k, 1] - sensor_y
+        r = math.sqrt(dx * dx + dy * dy)
+        xk = positions[k, 0] - origin_x
+        yk = positions[k, 1] - origin_y
+        if not (r > 0.0 and xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y):
+            continue
+        if p == 3:
+            b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, n0, n1, lx, ly)
+            su, sv = _cubic_span_gradient(coef, b, u, v)
+            gx = su * wx
+            gy = sv * wy
+        else:
+            _, gx, gy = _point_first_derivatives(xk, yk, knots_x, knots_y, p, control,
+                                                 weights, lx[0], lx[1], ly[0], ly[1], bx, by,
+                                                 dbx, dby, left, right)
+        rise = (gx * dx + gy * dy) / r
+        tan_e = dz / r
+        # rise < tan(e - margin), by the tangent of a difference (e - margin > -90 deg here)
+        if rise * (1.0 + tan_e * tan_margin) < tan_e - tan_margin:
+            out[count] = k
+            count += 1
+    return out[:count]
+
+
 # -------------------------------------------------------------------------------------------
 # normal equations of a tensor-product fit on a grid, by rows
 
