@@ -41,9 +41,8 @@ from .spline import TerrainSurface
 
 __all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
            "label_heights", "mark_object_feet", "out_of_sight", "relabel_along_normal",
-           "scan_line_spacing",
-           "segment_points", "sensor_ground_gradient", "sensor_in_cloud", "thresholds",
-           "widen_labels"]
+           "scan_line_spacing", "segment_points", "sensor_ground_gradient", "sensor_in_cloud",
+           "thresholds", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m.
 #: The floor covers the terrain's own relief inside a cell, which the surface of 0.5 m cells
@@ -510,15 +509,14 @@ def out_of_sight(surface: TerrainSurface, positions, labels: np.ndarray,
     not see"."""
     p = _positions(positions)
     tol_x, tol_y = surface._tolerances()
+    step = max(1, len(p) // SIGHT_SAMPLE)  # the ground around the sensor from every step-th
     return _bs.out_of_sight(
         p, np.ascontiguousarray(labels, dtype=np.uint8), int(TerrainLabel.TERRAIN),
         float(sensor_origin[0]), float(sensor_origin[1]), float(sensor_origin[2]),
         math.tan(math.radians(margin_deg)), float(SENSOR_GROUND_RADIUS),
-        max(1, SENSOR_GROUND_MIN_POINTS // max(1, len(p) // SIGHT_SAMPLE)),
-        float(SIGHT_MIN_HEIGHT),
-        max(1, len(p) // SIGHT_SAMPLE), float(surface.origin[0]), float(surface.origin[1]),
-        tol_x, tol_y, surface.knots_x, surface.knots_y, int(surface.degree),
-        surface.control_points, surface.weights)
+        max(1, SENSOR_GROUND_MIN_POINTS // step), float(SIGHT_MIN_HEIGHT), step,
+        float(surface.origin[0]), float(surface.origin[1]), tol_x, tol_y, surface.knots_x,
+        surface.knots_y, int(surface.degree), surface.control_points, surface.weights)
 
 
 def _top_down_planes(labels: np.ndarray, h: np.ndarray, p: np.ndarray, threshold: float,

@@ -702,6 +702,21 @@ def _point_first_derivatives(xk, yk, knots_x, knots_y, p, control, weights, tab_
     return quotient_rule(a, d, ax, dx, ay, dy)
 
 
+@numba.njit(cache=True)
+def _gradient_tools(knots_x, knots_y, degree, control, weights):
+    """What a kernel needs to evaluate the surface's gradient point by point, made once per
+    surface: the span pairs' bicubic coefficients (degree 3, for :func:`_cubic_span_gradient`),
+    the axes' :func:`span_lookup` and scratch of size degree + 1 (for
+    :func:`_point_first_derivatives`). The per-point code stays in each kernel's loop: behind
+    a helper function numba called it per point, four times slower on the line-of-sight
+    kernel (with or without ``inline="always"``)."""
+    p = degree
+    return (_span_coefficients(knots_x, knots_y, p, control, weights),
+            span_lookup(knots_x, control.shape[0], p), span_lookup(knots_y, control.shape[1], p),
+            np.empty(p + 1), np.empty(p + 1), np.zeros(p + 1), np.zeros(p + 1), np.empty(p + 1),
+            np.empty(p + 1))
+
+
 @numba.njit(cache=True, error_model="numpy")
 def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
                          range_coefficient, sensor_x, sensor_y, range_high, cap, origin_x,
@@ -711,14 +726,12 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
     h >= -below_threshold f become ``terrain``, f = min(sqrt(1 + |grad S|^2), ``cap``) at the
     point (1 where the gradient is not finite or the point lies outside the knot range widened
     by ``tol_x``/``tol_y``), t(r) = min(threshold + range_coefficient r^2, max(range_high,
-    threshold)) (r: horizontal range from the sensor). The gradient is evaluated only at the points within ``cap`` times their
-    threshold: for degree 3 from the span pairs' bicubic A and D
-    (:func:`_cubic_span_gradient`, as :func:`heights_above` evaluates S), else by the
+    threshold)) (r: horizontal range from the sensor). The gradient is evaluated only at the
+    points within ``cap`` times their threshold: for degree 3 from the span pairs' bicubic A
+    and D (:func:`_cubic_span_gradient`, as :func:`heights_above` evaluates S), else by the
     operations of :func:`rational_surface_points`. Returns how many labels changed."""
     n = heights.shape[0]
     p = degree
-    n0 = control.shape[0]
-    n1 = control.shape[1]
     lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
     # the candidates, without branches (labels and heights mix at random along a scan)
     candidates = np.empty(n, np.int32)
@@ -735,15 +748,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         count += ((label == obstacle) & (h <= obstacle_cap)) | ((label == below) & (h >= below_cap))
     if count == 0:
         return 0
-    coef = _span_coefficients(knots_x, knots_y, p, control, weights)
-    lx = span_lookup(knots_x, n0, p)
-    ly = span_lookup(knots_y, n1, p)
-    bx = np.empty(p + 1)
-    by = np.empty(p + 1)
-    dbx = np.zeros(p + 1)
-    dby = np.zeros(p + 1)
-    left = np.empty(p + 1)
-    right = np.empty(p + 1)
+    coef, lx, ly, bx, by, dbx, dby, left, right = _gradient_tools(knots_x, knots_y, p, control,
+                                                                  weights)
     changed = 0
     for c in range(count):
         k = candidates[c]
@@ -758,7 +764,8 @@ def relabel_along_normal(labels, heights, positions, threshold, below_threshold,
         factor = 1.0
         if xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y:
             if p == 3:
-                b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, n0, n1, lx, ly)
+                b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, control.shape[0],
+                                                 control.shape[1], lx, ly)
                 su, sv = _cubic_span_gradient(coef, b, u, v)
                 gx = su * wx
                 gy = sv * wy
@@ -786,8 +793,7 @@ def out_of_sight(positions, labels, terrain, sensor_x, sensor_y, sensor_z, tan_m
     terrain points among every ``step``-th point lie within ``radius`` (x/y) of the sensor,
     or when their median height is not at least ``min_height`` below it. Points outside
     the knot range widened by ``tol_x``/``tol_y``, or with a non-finite gradient, are kept.
-    The gradient: for degree 3 from the span pairs' bicubic A and D
-    (:func:`_cubic_span_gradient`), else as :func:`rational_surface_points`."""
+    The gradient as in :func:`relabel_along_normal`."""
     n = positions.shape[0]
     # the ground around the sensor, from every step-th point
     around = np.empty(n // step + 1)
@@ -803,19 +809,9 @@ def out_of_sight(positions, labels, terrain, sensor_x, sensor_y, sensor_z, tan_m
             m += 1
     if m < min_points or not np.median(around[:m]) <= sensor_z - min_height:
         return np.empty(0, np.int64)
-    p = degree
-    n0 = control.shape[0]
-    n1 = control.shape[1]
     lo_x, hi_x, lo_y, hi_y = _knot_range(knots_x, knots_y, tol_x, tol_y)
-    coef = _span_coefficients(knots_x, knots_y, p, control, weights)
-    lx = span_lookup(knots_x, n0, p)
-    ly = span_lookup(knots_y, n1, p)
-    bx = np.empty(p + 1)
-    by = np.empty(p + 1)
-    dbx = np.zeros(p + 1)
-    dby = np.zeros(p + 1)
-    left = np.empty(p + 1)
-    right = np.empty(p + 1)
+    coef, lx, ly, bx, by, dbx, dby, left, right = _gradient_tools(knots_x, knots_y, degree,
+                                                                  control, weights)
     out = np.empty(n, np.int64)
     count = 0
     for k in range(n):
@@ -829,13 +825,14 @@ def out_of_sight(positions, labels, terrain, sensor_x, sensor_y, sensor_z, tan_m
         yk = positions[k, 1] - origin_y
         if not (r > 0.0 and xk >= lo_x and xk <= hi_x and yk >= lo_y and yk <= hi_y):
             continue
-        if p == 3:
-            b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, n0, n1, lx, ly)
+        if degree == 3:
+            b, u, v, wx, wy = _cubic_span_at(xk, yk, knots_x, knots_y, control.shape[0],
+                                             control.shape[1], lx, ly)
             su, sv = _cubic_span_gradient(coef, b, u, v)
             gx = su * wx
             gy = sv * wy
         else:
-            _, gx, gy = _point_first_derivatives(xk, yk, knots_x, knots_y, p, control,
+            _, gx, gy = _point_first_derivatives(xk, yk, knots_x, knots_y, degree, control,
                                                  weights, lx[0], lx[1], ly[0], ly[1], bx, by,
                                                  dbx, dby, left, right)
         rise = (gx * dx + gy * dy) / r

@@ -395,8 +395,23 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
     elevation = np.radians(np.linspace(fov_deg[0], fov_deg[1], beams))
     azimuth = np.arange(azimuth_steps) * (2 * math.pi / azimuth_steps)
     el, az = np.meshgrid(elevation, azimuth, indexing="ij")
-    directions = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)],
-                          axis=-1).reshape(-1, 3)
+    return _lidar_returns(scene, pose, _beam_directions(az.ravel(), el.ravel()), min_range,
+                          max_range, range_noise, outlier_fraction, seed)
+
+
+def _beam_directions(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    """Unit beam directions (N, 3) in the sensor frame from azimuth and elevation (rad)."""
+    return np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                     np.sin(elevation)], axis=-1)
+
+
+def _lidar_returns(scene: Scene, pose: np.ndarray, directions: np.ndarray, min_range: float,
+                   max_range: float, range_noise: float, outlier_fraction: float,
+                   seed: int) -> SyntheticCloud:
+    """The returns of a lidar at ``pose`` firing along ``directions`` (sensor frame): the
+    hits between ``min_range`` and ``max_range`` m, Gaussian range noise of ``range_noise`` m
+    along the beam and a fraction ``outlier_fraction`` of spurious returns (:func:`_spurious`),
+    in the sensor frame."""
     t, index, _ = cast(scene, pose[:3, 3], directions @ pose[:3, :3].T)
     keep = np.isfinite(t) & (t >= min_range) & (t <= max_range)
     directions, t, index = directions[keep], t[keep], index[keep]
@@ -435,18 +450,9 @@ def sample_solid_state(scene: Scene, *, sensor_xy=None, sensor_height: float = 1
     # field of view and back, at rates whose ratio is irrational (the pattern never repeats)
     phase = np.arange(points) * (2 * math.pi * ROSETTE_TURNS / points)
     offset = math.radians(fov_deg / 2) * np.abs(np.sin(ROSETTE_PETALS * phase))
-    azimuth = offset * np.cos(phase)
-    elevation = offset * np.sin(phase)
-    directions = np.stack([np.cos(elevation) * np.cos(azimuth),
-                           np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=-1)
-    t, index, _ = cast(scene, pose[:3, 3], directions @ pose[:3, :3].T)
-    keep = np.isfinite(t) & (t >= min_range) & (t <= max_range)
-    directions, t, index = directions[keep], t[keep], index[keep]
-    rng = np.random.default_rng(seed)
-    measured = t + rng.normal(0.0, range_noise, len(t)) if range_noise > 0 else t
-    measured, outliers = _spurious(measured, outlier_fraction, rng)
-    return SyntheticCloud(directions * measured[:, None], directions * t[:, None], index, pose,
-                          scene, "lidar", outliers=outliers)
+    directions = _beam_directions(offset * np.cos(phase), offset * np.sin(phase))
+    return _lidar_returns(scene, pose, directions, min_range, max_range, range_noise,
+                          outlier_fraction, seed)
 
 
 #: the rose of :func:`sample_solid_state`: turns of the beam about the axis per frame, and
