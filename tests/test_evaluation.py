@@ -206,6 +206,69 @@ def test_las_folder_keeps_going_past_a_corrupt_file(tmp_path):
     assert failures[0].name == "b.las" and "b.las" in failures[0].reason
 
 
+def _fake_rellis(folder: Path, ids, frames: int = 1):
+    """A sequence folder in RELLIS-3D's layout: Ouster scans in the KITTI .bin format beside
+    SemanticKITTI-format labels in its own folder."""
+    scans = folder / "os1_cloud_node_kitti_bin"
+    labels = folder / "os1_cloud_node_semantickitti_label_id"
+    scans.mkdir(parents=True)
+    labels.mkdir()
+    for i in range(frames):
+        np.random.default_rng(i).uniform(-5, 5, (len(ids), 4)).astype(np.float32).tofile(
+            scans / f"{i:06d}.bin")
+        np.asarray(ids, np.uint32).tofile(labels / f"{i:06d}.label")
+
+
+RELLIS_IDS = [1, 3, 10, 23, 31, 33, 0, 7, 4, 8, 17, 19, 6, 34]
+
+
+def test_rellis_layout_is_read_with_its_label_set(tmp_path):
+    _fake_rellis(tmp_path / "00000", RELLIS_IDS)
+    frame, = ds.open_dataset(tmp_path / "00000")
+    # dirt, grass, asphalt, concrete, puddle, mud are ground; void and sky not scored; tree,
+    # vehicle, person obstacles; bush, water, rubble neither ground nor obstacle
+    assert np.array_equal(frame.is_ground, [1] * 6 + [0] * 8)
+    assert np.array_equal(frame.scored, [1] * 6 + [0, 0] + [1] * 6)
+    assert np.array_equal(frame.obstacle, [0] * 8 + [1, 1, 1, 0, 0, 0])
+    # the SemanticKITTI set on the same ids finds no ground, and says so
+    frame, = ds.open_dataset(tmp_path / "00000", labels="semantickitti")
+    assert not frame.is_ground.any() and "right label set" in frame.notes[0]
+
+
+def test_a_folder_of_sequences_reads_each_with_a_prefix(tmp_path):
+    _fake_rellis(tmp_path / "00001", RELLIS_IDS, frames=2)
+    _fake_rellis(tmp_path / "00000", RELLIS_IDS, frames=3)
+    (tmp_path / "notes").mkdir()  # not a sequence folder: passed over
+    frames, failures = ds.iter_frames(ds.open_dataset(tmp_path, limit=2))
+    assert not failures
+    assert [f.name for f in frames] == ["00000/000000", "00000/000001", "00001/000000",
+                                        "00001/000001"]
+
+
+def test_label_sets_are_validated():
+    with pytest.raises(InputError, match=r"\[3\] are both ground and ignored"):
+        ds.LabelSet("x", (1, 3), (3,))
+    with pytest.raises(InputError, match="non-negative integers"):
+        ds.LabelSet("x", (-1,))
+    with pytest.raises(InputError, match="no ground label"):
+        ds.LabelSet("x", ())
+    with pytest.raises(InputError, match="did you mean 'rellis3d'"):
+        ds.label_set("rellis")
+    assert ds.label_set("RELLIS-3D") is ds.LABEL_SETS["rellis3d"]
+    changed = ds.LABEL_SETS["asprs"].with_ids(ground=(2, 8))
+    assert changed.ground == (2, 8) and changed.ignored == ds.LAS_IGNORED
+    with pytest.raises(InputError, match="is not one of"):  # before any frame is read
+        ds.open_dataset(Path("."), labels="kitti")
+
+
+def test_las_classes_with_another_label_set(tmp_path):
+    _tiny_las(tmp_path / "a.las", [2, 8, 1, 6, 9])
+    frame = ds.read_las_frame(tmp_path / "a.las",
+                              labels=ds.LABEL_SETS["asprs"].with_ids(ground=(2, 8, 9)))
+    assert np.array_equal(frame.is_ground, [1, 1, 0, 0, 1])
+    assert np.array_equal(frame.obstacle, [0, 0, 0, 1, 0])
+
+
 def test_unknown_sources_name_the_fix(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         ds.open_dataset(tmp_path / "missing")
@@ -312,6 +375,37 @@ def test_eval_segmentation_command_writes_json_and_reports_bad_frames(tmp_path, 
     assert result[0]["method"] == "ransac_plane"
     assert len(result[0]["frames"]) == 1 and result[0]["failures"][0]["name"] == "000001"
     assert "skipped `000001`" in (out / "segmentation.md").read_text()
+
+
+def test_eval_segmentation_label_options(tmp_path, capsys):
+    pytest.importorskip("o3d_terrain.api")
+    data = tmp_path / "seq"
+    _fake_kitti(data, frames=1, points=16)
+    out = tmp_path / "out"
+    # RANSAC on uniform noise: whatever it calls ground, only the ground set changes between
+    # the two runs, so the recall's denominator is the number of points with those ids
+    assert _cli(["eval", "segmentation", str(data), "-m", "ransac_plane", "--json"]) == 0
+    default = json.loads(capsys.readouterr().out)[0]["frames"][0]
+    assert _cli(["eval", "segmentation", str(data), "-m", "ransac_plane", "--json",
+                 "--ground-labels", "10,50", "--ignore-labels", "0,1"]) == 0
+    custom = json.loads(capsys.readouterr().out)[0]["frames"][0]
+    # 16 points of ids 40 72 10 70 0 1 48 50 twice: 12 scored either way
+    assert default["true_positive"] + default["false_negative"] == 6  # 40, 72, 48
+    assert custom["true_positive"] + custom["false_negative"] == 4  # 10, 50
+    # obstacles: every scored non-ground label unless named
+    assert custom["obstacle_points"] == 8
+    assert _cli(["eval", "segmentation", str(data), "-m", "ransac_plane", "-o", str(out),
+                 "--labels", "semantickitti", "--obstacle-labels", "70"]) == 0
+    result = json.loads((out / "segmentation.json").read_text())[0]["frames"][0]
+    assert result["obstacle_points"] == 2
+    capsys.readouterr()
+    for argv, message in (
+            (["--labels", "kitti"], "is not one of semantickitti"),
+            (["--ground-labels", "4O"], "'4O' is not a label id"),
+            (["--ignore-labels", "0"], "give --labels NAME"),
+            (["--labels", "semantickitti", "--ignore-labels", "40"], "both ground and ignored")):
+        assert _cli(["eval", "segmentation", str(data), "-m", "ransac_plane", *argv]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_eval_segmentation_rejects_unknown_method(tmp_path, capsys):

@@ -45,6 +45,18 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
                           + " (peers need the bench extra); repeat to compare")
     seg.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                      help="an option of segment_terrain, e.g. --option cell_size=0.25")
+    seg.add_argument("--labels", metavar="NAME",
+                     help="the label set that says which ids are ground: semantickitti, "
+                          "rellis3d or asprs (default: the data's format: SemanticKITTI "
+                          "folders semantickitti, RELLIS-3D's layout rellis3d, LAS asprs)")
+    seg.add_argument("--ground-labels", metavar="IDS",
+                     help="comma-separated label ids (LAS classes) that are ground, replacing "
+                          "the label set's, e.g. 1,3,10")
+    seg.add_argument("--ignore-labels", metavar="IDS",
+                     help="comma-separated label ids that are not scored (replacing the set's)")
+    seg.add_argument("--obstacle-labels", metavar="IDS",
+                     help="comma-separated label ids that count for obstacle recall (replacing "
+                          "the set's; 'all' = every scored label that is not ground)")
     seg.add_argument("--limit", type=int, default=None, help="at most this many frames each")
     seg.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes")
     seg.add_argument("--output", "-o", metavar="DIR",
@@ -135,10 +147,13 @@ def run_segmentation_command(args: argparse.Namespace) -> int:
         raise ConfigError(problems)
     if args.limit is not None and args.limit < 1:
         raise ConfigError(Problem("--limit", f"must be >= 1, got {args.limit}"))
+    labels = _label_set(args)
+    if labels is not None and not args.json:
+        print(f"label set {labels.describe()}", file=sys.stderr)
     reports = []
     for dataset in args.datasets:
         for method in methods:
-            frames = open_dataset(dataset, seed=args.seed, limit=args.limit)
+            frames = open_dataset(dataset, seed=args.seed, limit=args.limit, labels=labels)
             if method in (OURS, "ours"):
                 run: Any = ours(**options)
             else:
@@ -166,6 +181,64 @@ def run_segmentation_command(args: argparse.Namespace) -> int:
             print(f"wrote {out / 'segmentation.json'} and {out / 'segmentation.md'}",
                   file=sys.stderr)
     return EXIT_FAILURE if failed else EXIT_OK
+
+
+def _label_ids(text: str | None, option: str, *, allow_all: bool = False):
+    """The ids of a comma-separated ``--*-labels`` value (None when not given; "all" = None
+    as a value where ``allow_all``)."""
+    if text is None:
+        return None
+    if allow_all and text.strip().lower() == "all":
+        return "all"
+    ids = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if not part.isdigit():
+            raise ConfigError(Problem(option, f"'{part}' is not a label id",
+                                      f"give non-negative integers separated by commas, "
+                                      f"e.g. {option} 1,3,10"))
+        ids.append(int(part))
+    if not ids:
+        raise ConfigError(Problem(option, "no label id given", f"e.g. {option} 1,3,10"))
+    return tuple(ids)
+
+
+def _label_set(args: argparse.Namespace):
+    """The LabelSet of ``--labels`` and the ``--*-labels`` ids, None when none is given (each
+    format's own set)."""
+    from ..errors import InputError
+    from .datasets import LABEL_SETS, LabelSet, label_set
+
+    ground = _label_ids(args.ground_labels, "--ground-labels")
+    ignored = _label_ids(args.ignore_labels, "--ignore-labels")
+    obstacle = _label_ids(args.obstacle_labels, "--obstacle-labels", allow_all=True)
+    if args.labels is None and ground is None and ignored is None and obstacle is None:
+        return None
+    if args.labels is None and ground is None:
+        raise ConfigError(Problem(
+            "--ignore-labels" if ignored is not None else "--obstacle-labels",
+            "changes a label set, but none is named",
+            "give --labels NAME (" + ", ".join(LABEL_SETS) + ") or --ground-labels IDS"))
+    if args.labels is not None:
+        try:
+            base = label_set(args.labels)
+        except InputError as exc:
+            raise ConfigError(Problem("--labels", str(exc))) from exc
+    every_other = obstacle == "all"  # obstacles: every scored label that is not ground
+    try:
+        if args.labels is None:
+            changed = LabelSet("custom", ground, ignored or (), None if every_other else obstacle)
+        else:
+            changed = base.with_ids(ground=ground, ignored=ignored,
+                                    obstacle=None if every_other else obstacle)
+            if every_other:
+                changed = LabelSet(f"{base.name} (changed)", changed.ground, changed.ignored)
+    except InputError as exc:
+        raise ConfigError(Problem("--ground-labels/--ignore-labels/--obstacle-labels",
+                                  str(exc))) from exc
+    return changed
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,7 +15,14 @@ Ground sets
 * LAS/LAZ (ASPRS): class 2 is ground. 0 (never classified), 7 (low noise) and 18 (high noise)
   are not scored. Obstacles: 4 medium vegetation, 5 high vegetation, 6 building, 14 wire
   conductor, 15 transmission tower, 17 bridge deck.
+* RELLIS-3D (off-road, SemanticKITTI file format): 1 dirt, 3 grass, 10 asphalt, 23 concrete,
+  31 puddle, 33 mud are ground; 0 (void) and 7 (sky) are not scored. Obstacles: 4 tree, 5 pole,
+  8 vehicle, 9 object, 12 building, 15 log, 17 person, 18 fence, 27 barrier. Bush, water and
+  rubble count as not ground but stay out of obstacle recall (as SemanticKITTI's vegetation).
 * Synthetic scenes: every point not on an obstacle is ground; the exact terrain is known.
+
+Any other ontology is a :class:`LabelSet` of its own (``eval segmentation --ground-labels``):
+the presets are in :data:`LABEL_SETS`.
 """
 
 from __future__ import annotations
@@ -43,6 +50,102 @@ SEMANTIC_KITTI_OBSTACLE = (
 LAS_GROUND = (2,)
 LAS_IGNORED = (0, 7, 18)
 LAS_OBSTACLE = (4, 5, 6, 14, 15, 17)
+RELLIS_3D_GROUND = (1, 3, 10, 23, 31, 33)
+RELLIS_3D_IGNORED = (0, 7)
+RELLIS_3D_OBSTACLE = (4, 5, 8, 9, 12, 15, 17, 18, 27)
+
+
+@dataclass(frozen=True)
+class LabelSet:
+    """Which per-point label ids are ground, which are not scored, and which count for obstacle
+    recall (``obstacle`` None: every scored point that is not ground)."""
+
+    name: str
+    ground: tuple[int, ...]
+    ignored: tuple[int, ...] = ()
+    obstacle: tuple[int, ...] | None = None
+
+    def __post_init__(self):
+        where = f"label set '{self.name}'"
+        sets = {"ground": self.ground, "ignored": self.ignored, "obstacle": self.obstacle or ()}
+        for part, ids in sets.items():
+            if any(isinstance(i, bool) or not isinstance(i, (int, np.integer)) or i < 0
+                   for i in ids):
+                raise InputError(f"{where}: the {part} labels {list(ids)} must be "
+                                 "non-negative integers")
+        if not self.ground:
+            raise InputError(f"{where}: no ground label; give at least one ground id")
+        for a, b in (("ground", "ignored"), ("ground", "obstacle"), ("ignored", "obstacle")):
+            both = sorted(set(sets[a]) & set(sets[b]))
+            if both:
+                raise InputError(f"{where}: label(s) {both} are both {a} and {b}; "
+                                 f"a label id can be in one of them only")
+
+    def masks(self, ids: np.ndarray, finite: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                    np.ndarray]:
+        """(is_ground, scored, obstacle) per point from its label id and finiteness."""
+        is_ground = np.isin(ids, self.ground)
+        scored = ~np.isin(ids, self.ignored) & finite
+        obstacle = ~is_ground & scored if self.obstacle is None else np.isin(ids, self.obstacle)
+        return is_ground, scored, obstacle
+
+    def with_ids(self, *, ground: Sequence[int] | None = None,
+                 ignored: Sequence[int] | None = None,
+                 obstacle: Sequence[int] | None = None) -> "LabelSet":
+        """This set with the parts given replaced (the name marks the change)."""
+        if ground is None and ignored is None and obstacle is None:
+            return self
+        return LabelSet(
+            f"{self.name} (changed)",
+            tuple(self.ground if ground is None else ground),
+            tuple(self.ignored if ignored is None else ignored),
+            self.obstacle if obstacle is None else tuple(obstacle))
+
+    def describe(self) -> str:
+        obstacle = "every other scored label" if self.obstacle is None else \
+            ", ".join(map(str, self.obstacle))
+        return (f"{self.name}: ground {', '.join(map(str, self.ground))}; not scored "
+                f"{', '.join(map(str, self.ignored)) or 'none'}; obstacles {obstacle}")
+
+
+#: the label sets known by name (``eval segmentation --labels NAME``)
+LABEL_SETS = {
+    "semantickitti": LabelSet("semantickitti", SEMANTIC_KITTI_GROUND, SEMANTIC_KITTI_IGNORED,
+                              SEMANTIC_KITTI_OBSTACLE),
+    "rellis3d": LabelSet("rellis3d", RELLIS_3D_GROUND, RELLIS_3D_IGNORED, RELLIS_3D_OBSTACLE),
+    "asprs": LabelSet("asprs", LAS_GROUND, LAS_IGNORED, LAS_OBSTACLE),
+}
+
+
+def label_set(name: str | LabelSet) -> LabelSet:
+    """A :class:`LabelSet` by its name in :data:`LABEL_SETS` (a LabelSet is returned as is)."""
+    if isinstance(name, LabelSet):
+        return name
+    key = str(name).lower().replace("-", "").replace("_", "")
+    if key not in LABEL_SETS:
+        close = difflib.get_close_matches(key, LABEL_SETS, n=1)
+        raise InputError(f"label set '{name}' is not one of {', '.join(LABEL_SETS)}"
+                         + (f"; did you mean '{close[0]}'?" if close else
+                            "; give the ids instead (--ground-labels, --ignore-labels)"))
+    return LABEL_SETS[key]
+
+
+#: scan and label folders of a sequence folder in the SemanticKITTI file format, with the label
+#: set a layout implies: SemanticKITTI's own, and RELLIS-3D's Ouster scans
+SEQUENCE_LAYOUTS = (
+    ("velodyne", "labels", "semantickitti"),
+    ("os1_cloud_node_kitti_bin", "os1_cloud_node_semantickitti_label_id", "rellis3d"),
+)
+
+
+def sequence_layout(folder: str | os.PathLike) -> tuple[Path, Path, str] | None:
+    """(scan folder, label folder, label set name) of a sequence folder, None when ``folder``
+    has none of :data:`SEQUENCE_LAYOUTS`' scan folders."""
+    folder = Path(folder)
+    for scans, labels, name in SEQUENCE_LAYOUTS:
+        if (folder / scans).is_dir():
+            return folder / scans, folder / labels, name
+    return None
 
 #: the synthetic stereo rig as its user knows it from calibration (``sample_stereo``'s
 #: defaults): focal length 0.8 x 320 px, baseline 0.3 m, disparity noise 0.25 px; clouds are in
@@ -104,35 +207,53 @@ FrameOrFailure = LabelledFrame | FrameFailure
 # SemanticKITTI
 
 
-def semantic_kitti_frames(folder: str | os.PathLike, *, limit: int | None = None
+def semantic_kitti_frames(folder: str | os.PathLike, *, limit: int | None = None,
+                          labels: str | LabelSet | None = None, prefix: str = ""
                           ) -> Iterator[FrameOrFailure]:
-    """Frames of a SemanticKITTI sequence folder holding ``velodyne/*.bin`` and ``labels/*.label``.
+    """Frames of a sequence folder in the SemanticKITTI file format: ``velodyne/*.bin`` with
+    ``labels/*.label`` (SemanticKITTI), or RELLIS-3D's ``os1_cloud_node_kitti_bin/`` with
+    ``os1_cloud_node_semantickitti_label_id/`` (:data:`SEQUENCE_LAYOUTS`).
 
-    A scan without a label file, or with a label count that does not match its points, is
-    yielded as a :class:`FrameFailure`.
+    ``labels``: the :class:`LabelSet` (or its name); None = the one the layout implies.
+    ``prefix`` goes before each frame's name (the sequence, when reading several). A scan
+    without a label file, or with a label count that does not match its points, is yielded
+    as a :class:`FrameFailure`.
     """
     folder = Path(folder)
-    velodyne = folder / "velodyne"
-    labels = folder / "labels"
-    if not velodyne.is_dir():
+    layout = sequence_layout(folder)
+    if layout is None:
         raise InputError(
             f"{folder}: no 'velodyne' folder; a SemanticKITTI sequence folder holds "
-            "velodyne/NNNNNN.bin and labels/NNNNNN.label"
+            "velodyne/NNNNNN.bin and labels/NNNNNN.label (RELLIS-3D: "
+            "os1_cloud_node_kitti_bin/ and os1_cloud_node_semantickitti_label_id/)"
         )
-    scans = sorted(velodyne.glob("*.bin"))
+    scan_folder, label_folder, implied = layout
+    chosen = label_set(implied if labels is None else labels)
+    scans = sorted(scan_folder.glob("*.bin"))
     if not scans:
-        raise InputError(f"{velodyne}: no .bin scans found")
+        raise InputError(f"{scan_folder}: no .bin scans found")
     for scan in scans[:limit]:
-        label_path = labels / (scan.stem + ".label")
+        label_path = label_folder / (scan.stem + ".label")
         try:
-            yield read_semantic_kitti_frame(scan, label_path)
+            yield read_semantic_kitti_frame(scan, label_path, labels=chosen, prefix=prefix)
         except (InputError, OSError, ValueError) as exc:
-            yield FrameFailure(scan.stem, str(scan), str(exc))
+            yield FrameFailure(prefix + scan.stem, str(scan), str(exc))
 
 
-def read_semantic_kitti_frame(scan_path: str | os.PathLike, label_path: str | os.PathLike
+def sequence_folders(folder: str | os.PathLike) -> list[Path]:
+    """The sequence folders (:func:`sequence_layout`) directly inside ``folder``, sorted by
+    name (a dataset root such as ``sequences/`` or RELLIS-3D's ``Rellis-3D/``)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if p.is_dir() and sequence_layout(p) is not None)
+
+
+def read_semantic_kitti_frame(scan_path: str | os.PathLike, label_path: str | os.PathLike, *,
+                              labels: str | LabelSet = "semantickitti", prefix: str = ""
                               ) -> LabelledFrame:
-    """One SemanticKITTI scan with its labels (the semantic id is the lower 16 bits)."""
+    """One scan in the SemanticKITTI file format with its labels (the semantic id is the lower
+    16 bits), scored by the :class:`LabelSet` ``labels``."""
     scan_path, label_path = Path(scan_path), Path(label_path)
     if not label_path.exists():
         raise InputError(f"{scan_path.name}: no label file {label_path}; every scan needs one")
@@ -151,25 +272,39 @@ def read_semantic_kitti_frame(scan_path: str | os.PathLike, label_path: str | os
         )
     positions = data[:, :3].astype(np.float64)
     finite = np.isfinite(positions).all(axis=1)
+    is_ground, scored, obstacle = label_set(labels).masks(semantic, finite)
     return LabelledFrame(
-        name=scan_path.stem,
+        name=prefix + scan_path.stem,
         positions=positions,
-        is_ground=np.isin(semantic, SEMANTIC_KITTI_GROUND),
-        scored=~np.isin(semantic, SEMANTIC_KITTI_IGNORED) & finite,
-        obstacle=np.isin(semantic, SEMANTIC_KITTI_OBSTACLE),
+        is_ground=is_ground,
+        scored=scored,
+        obstacle=obstacle,
         kind="vehicle_lidar",
         source=str(scan_path),
-        sensor_height=None,  # about 1.73 m; peers keep their KITTI defaults
+        sensor_height=None,  # KITTI: about 1.73 m; peers keep their KITTI defaults
+        notes=_ground_notes(is_ground, scored, label_set(labels)),
     )
+
+
+def _ground_notes(is_ground: np.ndarray, scored: np.ndarray, labels: LabelSet
+                  ) -> tuple[str, ...]:
+    """A note when no scored point is ground (recall undefined: likely the wrong label set)."""
+    if (is_ground & scored).any():
+        return ()
+    return (f"no scored point has a ground label ({labels.describe()}): recall is undefined; "
+            "is this the right label set (--labels, --ground-labels)?",)
 
 
 # ---------------------------------------------------------------------------------------------
 # LAS / LAZ
 
 
-def read_las_frame(path: str | os.PathLike) -> LabelledFrame:
-    """A LAS/LAZ tile with its ASPRS classes; feet are converted to metres."""
+def read_las_frame(path: str | os.PathLike, *, labels: str | LabelSet = "asprs"
+                   ) -> LabelledFrame:
+    """A LAS/LAZ tile with its classes scored by the :class:`LabelSet` ``labels`` (ASPRS:
+    class 2 is ground); feet are converted to metres."""
     path = Path(path)
+    labels = label_set(labels)
     las = open_las(path)
     positions, units = las_positions(las, to_metres=True)
     factor, unit_source = units.horizontal, units.source
@@ -177,15 +312,17 @@ def read_las_frame(path: str | os.PathLike) -> LabelledFrame:
     notes = ()
     if factor != 1.0:
         notes = (f"coordinates in feet ({unit_source}); converted to metres (x {factor:.7f})",)
-    is_ground = np.isin(classification, LAS_GROUND)
+    is_ground, scored, obstacle = labels.masks(classification,
+                                               np.isfinite(positions).all(axis=1))
     if not is_ground.any():
-        notes += ("no point has class 2 (ground): recall is undefined on this tile",)
+        notes += (f"no point has a ground class ({', '.join(map(str, labels.ground))}): "
+                  "recall is undefined on this tile",)
     return LabelledFrame(
         name=path.name,
         positions=positions,
         is_ground=is_ground,
-        scored=~np.isin(classification, LAS_IGNORED) & np.isfinite(positions).all(axis=1),
-        obstacle=np.isin(classification, LAS_OBSTACLE),
+        scored=scored,
+        obstacle=obstacle,
         kind="aerial",
         source=str(path),
         metres_per_unit=factor,
@@ -193,8 +330,11 @@ def read_las_frame(path: str | os.PathLike) -> LabelledFrame:
     )
 
 
-def las_frames(path: str | os.PathLike) -> Iterator[FrameOrFailure]:
-    """Frames of one LAS/LAZ file or of every ``*.las``/``*.laz`` in a folder."""
+def las_frames(path: str | os.PathLike, *, labels: str | LabelSet = "asprs"
+               ) -> Iterator[FrameOrFailure]:
+    """Frames of one LAS/LAZ file or of every ``*.las``/``*.laz`` in a folder (classes scored
+    by ``labels``: :func:`read_las_frame`)."""
+    labels = label_set(labels)
     path = Path(path)
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".las", ".laz"))
@@ -206,7 +346,7 @@ def las_frames(path: str | os.PathLike) -> Iterator[FrameOrFailure]:
         raise InputError(f"{path}: no such file or folder")
     for file in files:
         try:
-            yield read_las_frame(file)
+            yield read_las_frame(file, labels=labels)
         except (InputError, OSError, ValueError) as exc:
             yield FrameFailure(file.name, str(file), str(exc))
 
@@ -313,14 +453,20 @@ def synthetic_scene_names() -> tuple[str, ...]:
 # any source
 
 
-def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = None
-                 ) -> Iterator[FrameOrFailure]:
+def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = None,
+                 labels: str | LabelSet | None = None) -> Iterator[FrameOrFailure]:
     """Frames of a dataset given as a path or ``synthetic:NAME[,NAME...][:SENSOR]`` (SENSOR one
     of :data:`SYNTHETIC_SENSORS`, default lidar).
 
-    A folder with ``velodyne/`` is read as SemanticKITTI; a LAS/LAZ file or a folder of them as
-    ASPRS-classified tiles.
+    A sequence folder in the SemanticKITTI file format (``velodyne/``, or RELLIS-3D's
+    ``os1_cloud_node_kitti_bin/``: :data:`SEQUENCE_LAYOUTS`) is read as one sequence; a folder
+    of such sequence folders as all of them (``limit`` frames from each); a LAS/LAZ file or a
+    folder of them as classified tiles. ``labels``: the :class:`LabelSet` (or its name) that
+    says which label ids are ground; None = the format's own (SemanticKITTI's, RELLIS-3D's
+    for its layout, ASPRS for LAS). Synthetic scenes carry their truth and ignore it.
     """
+    if labels is not None:
+        labels = label_set(labels)  # a wrong name fails here, before any frame is read
     text = str(spec)
     if text.startswith("synthetic"):
         parts = text.split(":")
@@ -332,16 +478,21 @@ def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = 
         sensor = parts[2] if len(parts) > 2 else "lidar"
         return synthetic_frames(names[:limit] if limit else names, seed=seed, sensor=sensor)
     path = Path(text)
-    if path.is_dir() and (path / "velodyne").is_dir():
-        return semantic_kitti_frames(path, limit=limit)
+    if path.is_dir() and sequence_layout(path) is not None:
+        return semantic_kitti_frames(path, limit=limit, labels=labels)
+    sequences = sequence_folders(path)
+    if sequences:
+        return (frame for folder in sequences for frame in
+                semantic_kitti_frames(folder, limit=limit, labels=labels,
+                                      prefix=f"{folder.name}/"))
     if path.is_dir() or path.suffix.lower() in (".las", ".laz"):
-        frames = las_frames(path)
+        frames = las_frames(path, labels="asprs" if labels is None else labels)
         return (f for i, f in enumerate(frames) if limit is None or i < limit)
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
     raise InputError(
         f"{path}: not a labelled dataset; give a SemanticKITTI sequence folder (with velodyne/ "
-        "and labels/), a LAS/LAZ file or folder, or synthetic:NAME"
+        "and labels/), a folder of them, a LAS/LAZ file or folder, or synthetic:NAME"
     )
 
 
