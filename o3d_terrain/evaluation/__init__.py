@@ -20,15 +20,22 @@ from .metrics import SegmentationCounts, height_rmse, segmentation_counts, slope
 from .peers import PEERS, make_peer, peer_status
 from .segmentation import SegmentationReport, evaluate_segmentation, method_names, resolve_method
 from .terrain import (
+    Raster,
     TerrainReport,
+    TruthOverlapError,
     evaluate_dem_terrain,
     evaluate_synthetic_terrain,
+    evaluate_terrain_against_raster,
+    read_pose,
+    read_raster,
     write_error_map,
 )
 
 __all__ = [
-    "FrameFailure", "LabelledFrame", "PEERS", "SegmentationCounts", "SegmentationReport",
-    "TerrainReport", "evaluate_dem_terrain", "evaluate_segmentation", "evaluate_synthetic_terrain",
+    "FrameFailure", "LabelledFrame", "PEERS", "Raster", "SegmentationCounts",
+    "SegmentationReport", "TerrainReport", "TruthOverlapError", "evaluate_dem_terrain",
+    "evaluate_segmentation", "evaluate_synthetic_terrain", "evaluate_terrain_against_raster",
+    "read_pose", "read_raster",
     "height_rmse", "las_frames", "make_peer", "method_names", "open_dataset", "peer_status",
     "read_las_frame", "resolve_method", "segmentation_counts", "semantic_kitti_frames",
     "slope_error_deg", "synthetic_frames", "write_error_map",

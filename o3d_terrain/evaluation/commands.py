@@ -67,8 +67,9 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     ter = sub.add_parser(
         "terrain", help="height RMSE and slope error against an exact terrain, with error maps",
         description="Fit the terrain and compare it with an exact one: synthetic:NAME[,NAME..]"
-                    "[:stereo|:solid_state] scenes, or a DEM raster (e.g. dem.tif, sampled "
-                    "into clouds).")
+                    "[:stereo|:solid_state] scenes, a DEM raster (e.g. dem.tif, sampled "
+                    "into clouds), or a measured point cloud with --truth DEM.tif (a surveyed "
+                    "elevation raster of its area).")
     ter.add_argument("source", metavar="SOURCE")
     ter.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                      help="an option of fit_terrain, e.g. --option control_points=[25,25]")
@@ -79,6 +80,18 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     ter.add_argument("--density", type=float, default=4.0, help="DEM sampling (points per m²)")
     ter.add_argument("--noise", type=float, default=0.02, help="height noise of DEM samples (m)")
     ter.add_argument("--obstacles", type=int, default=0, help="box obstacles per DEM window")
+    ter.add_argument("--truth", metavar="DEM.tif",
+                     help="a surveyed elevation raster (metres, the cloud's coordinates after "
+                          "--pose): SOURCE is then a point cloud file, fitted and compared")
+    ter.add_argument("--truth-origin", type=float, nargs=2, metavar=("X", "Y"),
+                     help="x, y of the raster's upper-left corner (instead of GeoTIFF tags)")
+    ter.add_argument("--truth-cell-size", type=float, metavar="M",
+                     help="the raster's cell size in metres (with --truth-origin)")
+    ter.add_argument("--pose", metavar="FILE",
+                     help="4x4 matrix (text) mapping the cloud's coordinates into the raster's")
+    ter.add_argument("--support-distance", type=float, metavar="M",
+                     help="score raster cells with a cloud point this close to the centre "
+                          "(default: the larger of the raster cell and the fit grid cell)")
     ter.add_argument("--output", "-o", metavar="DIR",
                      help="write terrain.json, terrain.md and error-map PNGs here")
     ter.add_argument("--json", action="store_true", help="print JSON instead of tables")
@@ -256,7 +269,17 @@ def run_terrain_command(args: argparse.Namespace) -> int:
         _check_option_names(options, fit_terrain, "--option")
     fitter = default_fitter(**options)
     source = str(args.source)
-    if source.startswith("synthetic"):
+    truth_flags = [flag for flag, name in (("--truth-origin", "truth_origin"),
+                                           ("--truth-cell-size", "truth_cell_size"),
+                                           ("--pose", "pose"),
+                                           ("--support-distance", "support_distance"))
+                   if getattr(args, name, None) is not None]
+    if getattr(args, "truth", None) is not None:
+        report, maps = _terrain_against_truth(args, options)
+    elif truth_flags:
+        raise ConfigError([Problem(flag, "applies only with --truth",
+                                   "add --truth DEM.tif, or leave it out") for flag in truth_flags])
+    elif source.startswith("synthetic"):
         from .datasets import synthetic_scene_names
 
         parts = source.split(":")
@@ -291,6 +314,55 @@ def run_terrain_command(args: argparse.Namespace) -> int:
             print(f"wrote terrain.json, terrain.md and {len(maps)} error map(s) to {out}",
                   file=sys.stderr)
     return EXIT_FAILURE if report.failures else EXIT_OK
+
+
+def _terrain_against_truth(args: argparse.Namespace, options: dict[str, Any]):
+    """``eval terrain CLOUD --truth DEM.tif``: the report and its error map (raster window)."""
+    from ..errors import InputError
+    from ..io import CLOUD_EXTENSIONS, read_cloud
+    from .terrain import TruthOverlapError, evaluate_terrain_against_raster, read_pose, read_raster
+
+    cloud_path, truth_path = Path(args.source), Path(args.truth)
+    problems = []
+    if not cloud_path.is_file():
+        problems.append(Problem("CLOUD", f"{cloud_path}: no such file",
+                                f"give a point cloud file ({', '.join(CLOUD_EXTENSIONS)})"))
+    if not truth_path.is_file():
+        problems.append(Problem("--truth", f"{truth_path}: no such file",
+                                "give an elevation raster (GeoTIFF)"))
+    if (args.truth_origin is None) != (args.truth_cell_size is None):
+        problems.append(Problem("--truth-origin" if args.truth_origin is None
+                                else "--truth-cell-size", "missing",
+                                "give --truth-origin X Y and --truth-cell-size M together"))
+    if args.truth_cell_size is not None and not args.truth_cell_size > 0:
+        problems.append(Problem("--truth-cell-size", f"must be > 0 m, got {args.truth_cell_size}"))
+    if args.support_distance is not None and not args.support_distance > 0:
+        problems.append(Problem("--support-distance",
+                                f"must be > 0 m, got {args.support_distance}"))
+    if problems:
+        raise ConfigError(problems)
+    # each input, its errors named by its option
+    steps = [("--pose", lambda: read_pose(args.pose) if args.pose else None),
+             ("--truth", lambda: read_raster(truth_path, origin=args.truth_origin,
+                                             cell_size=args.truth_cell_size)),
+             ("CLOUD", lambda: read_cloud(cloud_path))]
+    values = []
+    for where, read in steps:
+        try:
+            values.append(read())
+        except InputError as exc:
+            problems.append(Problem(where, str(exc)))
+    if problems:
+        raise ConfigError(problems)
+    pose, raster, cloud = values
+    try:  # sensor_origin defaults to where the pose puts the cloud's origin
+        report = evaluate_terrain_against_raster(
+            cloud, raster, pose=pose, fit_options=options,
+            support_distance=args.support_distance, name=cloud_path.stem)
+    except TruthOverlapError as exc:
+        raise ConfigError(Problem("--truth", str(exc))) from exc
+    maps = {cloud_path.stem: (report.maps["height_error"], report.maps["slope_error"], False)}
+    return report, maps
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """Terrain evaluation: height and slope of a fitted surface against an exact terrain.
 
-Two sources of exact terrain:
+Three sources of exact terrain:
 
 * the synthetic scenes (``o3d_terrain.synthetic``): a lidar or stereo frame is sampled, the
   surface is fitted to it in the sensor frame and compared on a grid with the exact terrain in
@@ -9,7 +9,10 @@ Two sources of exact terrain:
 * a DEM raster (e.g. ``dem.tif``, 1 m cells): windows of the DEM the size of a vehicle's area of
   interest are sampled into clouds (bilinear heights, optional noise and box obstacles), each
   window is fitted, and the surface is compared with the DEM heights at the cell centres and
-  with the DEM's slope (central differences over one cell).
+  with the DEM's slope (central differences over one cell);
+* a surveyed elevation raster of a measured cloud's area (:func:`evaluate_terrain_against_raster`):
+  the cloud (moved by an optional pose into the raster's coordinates) is fitted and compared
+  with the raster at the cell centres that lie in the fitted region near a cloud point.
 
 A *fitter* is a callable ``(positions) -> surface`` where ``surface(x, y)`` is the height and
 ``surface.slope_deg(x, y)`` the slope angle in degrees; ours is
@@ -20,10 +23,11 @@ draws them as a PNG with OpenCV.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -60,6 +64,10 @@ class TerrainResult:
             "scored_nodes": int(np.isfinite(self.height_error).sum()),
             "notes": list(self.notes),
         }
+
+    def markdown_details(self) -> list[str]:
+        """Lines the report's Markdown adds after its table (none here)."""
+        return []
 
 
 @dataclass
@@ -116,6 +124,8 @@ class TerrainReport:
                 f"| **all** | | {_f(o['height_rmse_m'], 3)} | {_f(o['height_p95_abs_m'], 3)} | | "
                 f"{_f(o['slope_mean_abs_deg'], 2)} | {_f(o['slope_p95_abs_deg'], 2)} | |"
             )
+        for r in self.results:
+            lines += r.markdown_details()
         for name, reason in self.failures:
             lines.append("")
             lines.append(f"- skipped `{name}`: {reason}")
@@ -257,7 +267,12 @@ def read_dem(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such DEM file")
-    dem = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # GeoTIFF tags: "unknown"
+    try:
+        dem = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if dem is None:
         raise InputError(f"{path}: OpenCV could not read it as an image; give a float GeoTIFF")
     if dem.ndim != 2:
@@ -391,6 +406,464 @@ def evaluate_dem_terrain(
             on_result(result)
     report.maps = {"height_error": height_map, "slope_error": slope_map}
     return report
+
+
+# ---------------------------------------------------------------------------------------------
+# a measured cloud against a surveyed elevation raster
+
+
+#: truth slopes steeper than this (degrees) form the report's "steep" subset
+STEEP_SLOPE_DEG = 15.0
+
+#: GeoTIFF tags: ModelPixelScale, ModelTiepoint, ModelTransformation, GeoKeyDirectory, nodata
+_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS, _NODATA = 33550, 33922, 34264, 34735, 42113
+
+_GEOREF_FIX = ("give origin= and cell_size= (command line: --truth-origin X Y "
+               "--truth-cell-size M)")
+
+
+class TruthOverlapError(InputError):
+    """The cloud and the truth raster share no area, or too few raster cells can be scored."""
+
+
+@dataclass(frozen=True, eq=False)
+class Raster:
+    """An elevation raster in the cloud's (metric) coordinates: square cells, no rotation.
+
+    ``heights[row, col]`` in metres, row 0 = north (y falls with the row, as in a GeoTIFF);
+    NaN = no data. ``origin``: x, y of the upper-left corner of the upper-left cell;
+    ``cell_size``: the cell side in metres. Cell (row, col) has its centre at
+    ``(x0 + (col + 0.5) * cell_size, y0 - (row + 0.5) * cell_size)``.
+    """
+
+    heights: np.ndarray
+    origin: tuple[float, float]
+    cell_size: float
+    name: str = "raster"
+
+    def __post_init__(self) -> None:
+        heights = np.array(self.heights, dtype=np.float64)
+        problems = []
+        if heights.ndim != 2 or min(heights.shape, default=0) < 3:
+            problems.append(f"heights must be a 2-D array of at least 3 x 3 cells, got shape "
+                            f"{heights.shape}")
+        try:
+            origin = tuple(float(v) for v in self.origin)
+        except (TypeError, ValueError):
+            origin = ()
+        if len(origin) != 2 or not all(math.isfinite(v) for v in origin):
+            problems.append(f"origin must be two finite numbers (x, y of the upper-left corner), "
+                            f"got {self.origin!r}")
+        try:
+            cell_size = float(self.cell_size)
+        except (TypeError, ValueError):
+            cell_size = math.nan
+        if not (cell_size > 0 and math.isfinite(cell_size)):
+            problems.append(f"cell_size must be a positive number of metres, got "
+                            f"{self.cell_size!r}")
+        if problems:
+            raise InputError(f"Raster {self.name}: " + "; ".join(problems))
+        heights[~np.isfinite(heights)] = np.nan
+        heights.flags.writeable = False
+        object.__setattr__(self, "heights", heights)
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "cell_size", cell_size)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.heights.shape)  # type: ignore[return-value]
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the cells' outer edges."""
+        x0, y0 = self.origin
+        rows, cols = self.shape
+        return (x0, x0 + cols * self.cell_size, y0 - rows * self.cell_size, y0)
+
+    def x_centres(self) -> np.ndarray:
+        """x of the cell centres, one per column."""
+        return self.origin[0] + (np.arange(self.shape[1]) + 0.5) * self.cell_size
+
+    def y_centres(self) -> np.ndarray:
+        """y of the cell centres, one per row (falling)."""
+        return self.origin[1] - (np.arange(self.shape[0]) + 0.5) * self.cell_size
+
+    def slope_deg(self) -> np.ndarray:
+        """Slope angle (degrees) by central differences over one cell each way; NaN on the
+        border and where the cell or one of its 4 neighbours has no data."""
+        d_row, d_col = np.gradient(self.heights, self.cell_size)
+        slope = slope_deg_from_gradient(d_col, d_row)  # the row axis runs south: sign irrelevant
+        slope[np.isnan(self.heights)] = np.nan
+        slope[[0, -1], :] = np.nan
+        slope[:, [0, -1]] = np.nan
+        return slope
+
+
+def read_raster(path: str | os.PathLike, *, origin: Sequence[float] | None = None,
+                cell_size: float | None = None) -> Raster:
+    """A single-band elevation raster with its georeferencing.
+
+    Pixel values are read by :func:`read_dem` (OpenCV). ``origin`` (x, y of the upper-left
+    corner of the upper-left cell) and ``cell_size`` (m) place it; when not given they come
+    from the GeoTIFF tags ModelPixelScale (33550) and ModelTiepoint (33922) (or an unrotated
+    ModelTransformation, 34264), read with ``tifffile`` (the ``dem`` extra:
+    ``pip install 'o3d_terrain[dem]'``); a raster of type PixelIsPoint is shifted by half a
+    cell. The GDAL nodata tag (42113) marks cells without data, when tifffile can read it.
+    The raster must be in the cloud's coordinates and metres (no reprojection or unit
+    conversion is done).
+    """
+    path = Path(path)
+    heights = read_dem(path)
+    if (origin is None) != (cell_size is None):
+        raise InputError(f"{path}: origin and cell_size go together; give both or neither "
+                         "(neither: the GeoTIFF tags are read)")
+    tags, why = _geotiff_tags(path)
+    nodata = tags.get(_NODATA)
+    if nodata is not None:
+        try:
+            value = float(str(nodata).strip().strip("\x00"))
+        except ValueError:
+            value = math.nan
+        if math.isfinite(value):
+            heights[np.isclose(heights, value, rtol=1e-6, atol=0.0)] = np.nan
+    if origin is None:
+        if why:
+            raise InputError(f"{path}: {why}")
+        origin, cell_size = _georeference(path, tags)
+    return Raster(heights, origin, cell_size, name=path.name)
+
+
+def _geotiff_tags(path: Path) -> tuple[dict[int, Any], str]:
+    """The first page's tags by code, and why they could not be read ("" when they were)."""
+    try:
+        import tifffile
+    except ImportError:
+        return {}, ("reading the GeoTIFF georeferencing needs tifffile: "
+                    f"pip install 'o3d_terrain[dem]'; or {_GEOREF_FIX}")
+    log = logging.getLogger("tifffile")  # it logs GDAL nodata values it cannot cast
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        with tifffile.TiffFile(path) as tif:
+            return {tag.code: tag.value for tag in tif.pages[0].tags.values()}, ""
+    except Exception as exc:  # not a TIFF, or a corrupt one
+        return {}, f"is not a readable GeoTIFF ({exc}); {_GEOREF_FIX}"
+    finally:
+        log.setLevel(level)
+
+
+def _georeference(path: Path, tags: dict[int, Any]) -> tuple[tuple[float, float], float]:
+    """Upper-left corner and cell size from the GeoTIFF tags (raises when absent)."""
+    if _PIXEL_SCALE in tags and _TIEPOINT in tags:
+        sx, sy = (float(v) for v in tuple(tags[_PIXEL_SCALE])[:2])
+        i, j, _, x, y = (float(v) for v in tuple(tags[_TIEPOINT])[:5])
+        x0, y0 = x - i * sx, y + j * sy
+    elif _TRANSFORMATION in tags:
+        m = np.asarray(tags[_TRANSFORMATION], dtype=np.float64).reshape(4, 4)
+        if m[0, 1] != 0 or m[1, 0] != 0:
+            raise InputError(f"{path}: the raster is rotated (ModelTransformationTag); "
+                             "resample it north-up first (e.g. gdalwarp)")
+        sx, sy, x0, y0 = m[0, 0], -m[1, 1], m[0, 3], m[1, 3]
+    else:
+        raise InputError(f"{path}: has no GeoTIFF georeferencing (ModelPixelScaleTag 33550 and "
+                         f"ModelTiepointTag 33922); {_GEOREF_FIX}")
+    if not (sx > 0 and sy > 0):
+        raise InputError(f"{path}: pixel scale ({sx}, {sy}) is not positive; {_GEOREF_FIX}")
+    if abs(sx - sy) > 1e-9 * max(sx, sy):
+        raise InputError(f"{path}: cells of {sx} x {sy} are not square; resample the raster to "
+                         "square cells (e.g. gdalwarp -tr)")
+    keys = tuple(int(v) for v in tags.get(_GEOKEYS, ()))
+    for k in range(4, len(keys) - 3, 4):  # GTRasterTypeGeoKey (1025) = 2: PixelIsPoint
+        if keys[k] == 1025 and keys[k + 1] == 0 and keys[k + 3] == 2:
+            x0, y0 = x0 - sx / 2, y0 + sy / 2
+    return (float(x0), float(y0)), float(sx)
+
+
+def check_pose(matrix: Any, where: str = "pose") -> np.ndarray:
+    """A 4x4 rigid transform as float64: finite, last row 0 0 0 1, rotation part orthonormal
+    within 1e-6 with determinant +1. Raises :class:`InputError` naming ``where``."""
+    fix = "write 4 rows of 4 numbers: a rotation R and translation t as [[R, t], [0 0 0 1]]"
+    try:
+        m = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: not a matrix of numbers ({fix})") from None
+    if m.shape != (4, 4):
+        raise InputError(f"{where}: shape {m.shape}; a pose is a 4x4 matrix ({fix})")
+    if not np.isfinite(m).all():
+        raise InputError(f"{where}: holds non-finite numbers ({fix})")
+    if not np.allclose(m[3], (0, 0, 0, 1), rtol=0, atol=1e-12):
+        raise InputError(f"{where}: the last row is {m[3].tolist()}, it must be 0 0 0 1 ({fix})")
+    rotation = m[:3, :3]
+    deviation = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+    if deviation > 1e-6:
+        raise InputError(f"{where}: the rotation part is not orthonormal (R^T R differs from I "
+                         f"by {deviation:.2g}; scaling and shear are not allowed); give a rigid "
+                         "transform with its rotation written to at least 7 digits")
+    if np.linalg.det(rotation) < 0:
+        raise InputError(f"{where}: the rotation part is a reflection (determinant -1); give "
+                         "a proper rotation (determinant +1)")
+    return m
+
+
+def read_pose(path: str | os.PathLike) -> np.ndarray:
+    """A 4x4 pose from a text file (whitespace separated, as ``numpy.loadtxt`` reads),
+    checked by :func:`check_pose`."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such pose file")
+    try:
+        matrix = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"{path}: not a matrix of numbers ({exc}); write 4 rows of 4 numbers "
+                         "separated by spaces") from exc
+    return check_pose(matrix, where=str(path))
+
+
+def _extent_text(extent: Sequence[float]) -> str:
+    x0, x1, y0, y1 = extent
+    return f"x {x0:.2f} to {x1:.2f}, y {y0:.2f} to {y1:.2f}"
+
+
+def _error_stats(height_error: np.ndarray, slope_error: np.ndarray) -> dict[str, float]:
+    """Height and slope error statistics of the finite entries (m and degrees)."""
+    h = height_error[np.isfinite(height_error)]
+    s = slope_error[np.isfinite(slope_error)]
+    nan = math.nan
+    return {
+        "cells": int(h.size),
+        "height_bias_m": float(h.mean()) if h.size else nan,
+        "height_rmse_m": float(np.sqrt(np.mean(h * h))) if h.size else nan,
+        "height_mae_m": float(np.abs(h).mean()) if h.size else nan,
+        "height_p95_abs_m": float(np.percentile(np.abs(h), 95)) if h.size else nan,
+        "height_max_abs_m": float(np.abs(h).max()) if h.size else nan,
+        "slope_cells": int(s.size),
+        "slope_bias_deg": float(s.mean()) if s.size else nan,
+        "slope_rmse_deg": float(np.sqrt(np.mean(s * s))) if s.size else nan,
+        "slope_p95_abs_deg": float(np.percentile(np.abs(s), 95)) if s.size else nan,
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class RasterTerrainResult(TerrainResult):
+    """A :class:`TerrainResult` against a truth raster: the error maps cover the raster
+    window ``rows`` x ``cols`` (``[row, col]``, NaN = not scored); ``stats`` are every scored
+    cell's statistics and ``steep`` those of the cells whose truth slope exceeds
+    ``steep_slope_deg`` (None when there are none)."""
+
+    rows: tuple[int, int] = (0, 0)  # first and last + 1 raster row of the maps
+    cols: tuple[int, int] = (0, 0)
+    support_distance: float = math.nan
+    truth: str = ""  # the raster's name
+    stats: dict[str, float] = field(default_factory=dict)
+    steep: dict[str, float] | None = None
+    steep_slope_deg: float = STEEP_SLOPE_DEG
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            **super().to_dict(),
+            "scored_cells": self.stats["cells"],
+            "height_mae_m": self.stats["height_mae_m"],
+            "height_max_abs_m": self.stats["height_max_abs_m"],
+            "all": self.stats,
+            "steep": self.steep,
+            "steep_slope_deg": self.steep_slope_deg,
+            "support_distance_m": self.support_distance,
+            "truth": self.truth,
+            "raster_window": {"rows": list(self.rows), "cols": list(self.cols)},
+        }
+
+    def markdown_details(self) -> list[str]:
+        lines = [
+            "",
+            f"Scored {self.stats['cells']:,} cells of the raster `{self.truth}`: centre inside "
+            f"the fitted region, valid truth, a cloud point within {self.support_distance:g} m; "
+            "slope where the 4 neighbours are valid too.",
+            "",
+            "| cells | n | bias (m) | RMSE (m) | MAE (m) | p95 abs (m) | max abs (m) | "
+            "slope RMSE (°) | slope p95 (°) |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        subsets = [("all", self.stats)]
+        if self.steep:
+            subsets.append((f"truth slope > {self.steep_slope_deg:g}°", self.steep))
+        for label, s in subsets:
+            lines.append(
+                f"| {label} | {s['cells']:,} | {_f(s['height_bias_m'], 3)} | "
+                f"{_f(s['height_rmse_m'], 3)} | {_f(s['height_mae_m'], 3)} | "
+                f"{_f(s['height_p95_abs_m'], 3)} | {_f(s['height_max_abs_m'], 3)} | "
+                f"{_f(s['slope_rmse_deg'], 2)} | {_f(s['slope_p95_abs_deg'], 2)} |")
+        if not self.steep:
+            lines.append(f"| truth slope > {self.steep_slope_deg:g}° | 0 | | | | | | | |")
+        return lines
+
+
+def _truth_raster(raster: Any, origin, cell_size) -> Raster:
+    if isinstance(raster, Raster):
+        if origin is not None or cell_size is not None:
+            raise InputError("origin and cell_size are those of the Raster given; leave them "
+                             "out or pass the heights array instead")
+        return raster
+    if isinstance(raster, (str, os.PathLike)):
+        return read_raster(raster, origin=origin, cell_size=cell_size)
+    if origin is None or cell_size is None:
+        raise InputError("a truth raster given as an array needs origin= (x, y of its "
+                         "upper-left corner) and cell_size= (m)")
+    return Raster(np.asarray(raster, dtype=np.float64), origin, cell_size, name="array")
+
+
+def _truth_positions(cloud: Any, pose: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """Finite (N, 3) float64 positions of a cloud or file, moved by ``pose``; the checked
+    pose matrix (None without one)."""
+    from ..api import cloud_positions
+    from ..io import read_cloud
+
+    if isinstance(cloud, (str, os.PathLike)):
+        cloud = read_cloud(cloud)
+    positions = cloud_positions(cloud)
+    positions = positions[np.isfinite(positions).all(axis=1)]
+    if len(positions) == 0:
+        raise InputError("the cloud has no finite points; give a cloud with points")
+    if pose is None:
+        return positions, None
+    m = read_pose(pose) if isinstance(pose, (str, os.PathLike)) else check_pose(pose)
+    return positions @ m[:3, :3].T + m[:3, 3], m
+
+
+def evaluate_terrain_against_raster(
+    cloud: Any,
+    raster: Raster | np.ndarray | str | os.PathLike,
+    *,
+    origin: Sequence[float] | None = None,
+    cell_size: float | None = None,
+    pose: np.ndarray | str | os.PathLike | None = None,
+    fitter: Fitter | None = None,
+    fit_options: dict[str, Any] | None = None,
+    surface: Any = None,
+    support_distance: float | None = None,
+    steep_slope_deg: float = STEEP_SLOPE_DEG,
+    min_cells: int = 10,
+    name: str | None = None,
+) -> TerrainReport:
+    """Fit the terrain of a measured cloud and compare it with a surveyed elevation raster.
+
+    cloud: a file :func:`o3d_terrain.io.read_cloud` reads (LAS/LAZ in feet become metres), an
+    Open3D cloud or an (N, 3) array. raster: a :class:`Raster`, a GeoTIFF/raster path
+    (:func:`read_raster` with ``origin``/``cell_size``) or a heights array with ``origin``
+    and ``cell_size``; it must be in metres and in the coordinates of the cloud after
+    ``pose``. pose: a 4x4 rigid transform (array or text file) from the cloud's coordinates
+    into the raster's, applied before fitting. fitter: ``positions -> surface``; default
+    :func:`o3d_terrain.api.fit_terrain` with ``fit_options``, whose ``sensor_origin``
+    defaults to where the pose puts the cloud's origin (a scan's sensor). Or give ``surface``,
+    already fitted in the raster's coordinates.
+
+    Scored raster cells: the centre lies inside the surface's region (the cloud's extent when
+    the surface has none), the truth is valid (not nodata/NaN) and a cloud point lies within
+    ``support_distance`` m horizontally of the centre (default: the larger of the raster's
+    cell and the fit grid's cell, ``surface.cell_size`` or 0.5 m). Height error = surface -
+    truth at the centres; slope error = ``surface.slope_deg`` - the raster's slope by central
+    differences (cells whose 4 neighbours are valid). Raises :class:`TruthOverlapError` when
+    cloud and raster do not overlap or fewer than ``min_cells`` cells are scored.
+    """
+    problems = []
+    if sum(v is not None for v in (fitter, fit_options, surface)) > 1:
+        problems.append("give one of fitter, fit_options and surface, not several")
+    if support_distance is not None and not (support_distance > 0
+                                             and math.isfinite(support_distance)):
+        problems.append(f"support_distance must be a positive number of metres (or None), "
+                        f"got {support_distance}")
+    if not (isinstance(min_cells, int) and min_cells >= 1):
+        problems.append(f"min_cells must be an integer >= 1, got {min_cells!r}")
+    if not (0 <= steep_slope_deg < 90):
+        problems.append(f"steep_slope_deg must be in [0, 90) degrees, got {steep_slope_deg}")
+    if problems:
+        raise InputError("evaluate_terrain_against_raster: " + "; ".join(problems))
+    # the truth, and the points in its coordinates
+    truth = _truth_raster(raster, origin, cell_size)
+    positions, pose_matrix = _truth_positions(cloud, pose)
+    label = name or (Path(cloud).stem if isinstance(cloud, (str, os.PathLike)) else "cloud")
+    # the two must share some area
+    lo, hi = positions[:, :2].min(axis=0), positions[:, :2].max(axis=0)
+    cloud_extent = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+    rx0, rx1, ry0, ry1 = truth.extent
+    if lo[0] >= rx1 or hi[0] <= rx0 or lo[1] >= ry1 or hi[1] <= ry0:
+        raise TruthOverlapError(
+            f"the cloud ({_extent_text(cloud_extent)}"
+            f"{' after the pose' if pose is not None else ''}) and the raster {truth.name} "
+            f"({_extent_text(truth.extent)}) do not overlap; give the raster of the cloud's "
+            "area, or a pose mapping the cloud into the raster's coordinates")
+    # fit
+    seconds = 0.0
+    if surface is None:
+        if fitter is None:
+            options = dict(fit_options or {})
+            if pose_matrix is not None:  # the cloud's origin, e.g. the sensor, after the pose
+                options.setdefault("sensor_origin", tuple(float(v) for v in pose_matrix[:3, 3]))
+            fitter = default_fitter(**options)
+        start = time.perf_counter()
+        surface = fitter(positions)
+        seconds = time.perf_counter() - start
+    # score
+    result = _score_against_raster(label, surface, truth, positions, seconds=seconds,
+                                   support_distance=support_distance,
+                                   steep_slope_deg=steep_slope_deg, min_cells=min_cells,
+                                   cloud_extent=cloud_extent)
+    report = TerrainReport(source=f"{label} against {truth.name}"
+                                  + (" (with a pose)" if pose is not None else ""))
+    report.results.append(result)
+    report.maps = {"height_error": result.height_error, "slope_error": result.slope_error}
+    return report
+
+
+def _score_against_raster(name: str, surface: Any, truth: Raster, positions: np.ndarray, *,
+                          seconds: float, support_distance: float | None,
+                          steep_slope_deg: float, min_cells: int,
+                          cloud_extent: tuple[float, float, float, float]
+                          ) -> RasterTerrainResult:
+    """Compare ``surface`` with ``truth`` at the supported raster cell centres."""
+    from scipy.spatial import cKDTree
+
+    region = tuple(float(v) for v in getattr(surface, "region", cloud_extent))
+    if support_distance is None:
+        support_distance = max(truth.cell_size, float(getattr(surface, "cell_size", None) or 0.5))
+    # the raster window under the fitted region
+    xc, yc = truth.x_centres(), truth.y_centres()
+    cols = np.flatnonzero((xc >= region[0]) & (xc <= region[1]))
+    rows = np.flatnonzero((yc >= region[2]) & (yc <= region[3]))
+    if cols.size == 0 or rows.size == 0:
+        raise TruthOverlapError(
+            f"no cell centre of the raster {truth.name} ({_extent_text(truth.extent)}) lies in "
+            f"the fitted region ({_extent_text(region)}); give the raster of the cloud's area")
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    gx, gy = np.meshgrid(xc[c0:c1], yc[r0:r1])  # [row, col] like the raster
+    heights = truth.heights[r0:r1, c0:c1]
+    # cells with valid truth and a cloud point within support_distance of the centre
+    scored = np.isfinite(heights)
+    distance, _ = cKDTree(positions[:, :2]).query(
+        np.column_stack([gx[scored], gy[scored]]), distance_upper_bound=support_distance)
+    scored[scored] = np.isfinite(distance)
+    if int(scored.sum()) < min_cells:
+        raise TruthOverlapError(
+            f"only {int(scored.sum())} cells of the raster {truth.name} have valid truth and a "
+            f"cloud point within {support_distance:g} m (at least {min_cells} are needed; cloud "
+            f"{_extent_text(cloud_extent)}, raster {_extent_text(truth.extent)}); give the "
+            "raster of the cloud's area, a denser cloud or a larger support_distance "
+            "(--support-distance)")
+    true_slope = np.where(scored, truth.slope_deg()[r0:r1, c0:c1], np.nan)
+    notes = (f"truth: {truth.name}, {truth.shape[0]} x {truth.shape[1]} cells of "
+             f"{truth.cell_size:g} m, {_extent_text(truth.extent)}",
+             f"cloud: {len(positions):,} points, {_extent_text(cloud_extent)}")
+    base = compare_surface(name, surface, gx, gy, np.where(scored, heights, np.nan), true_slope,
+                           points=len(positions), seconds=seconds, notes=notes)
+    steep = np.isfinite(true_slope) & (true_slope > steep_slope_deg)
+    steep_stats = None
+    if steep.any():
+        steep_stats = _error_stats(np.where(steep, base.height_error, np.nan),
+                                   np.where(steep, base.slope_error, np.nan))
+    return RasterTerrainResult(
+        **{f.name: getattr(base, f.name) for f in fields(TerrainResult)},
+        rows=(r0, r1), cols=(c0, c1), support_distance=float(support_distance), truth=truth.name,
+        stats=_error_stats(base.height_error, base.slope_error), steep=steep_stats,
+        steep_slope_deg=float(steep_slope_deg))
 
 
 # ---------------------------------------------------------------------------------------------
