@@ -171,7 +171,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
     cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
     (at least 1 m), at most 32 per axis (48 on a top-down scan, no points near
-    ``sensor_origin``; one every 6 m on tiles wider than that allows). degree: B-spline degree.
+    ``sensor_origin``; one every 6 m on tiles wider than that allows), the refit (``refine``)
+    up to 40 per axis (:data:`o3d_terrain.refine.REFINE_MAX_CONTROL_POINTS`). degree: B-spline degree.
     method: "robust" or "paper".
     smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
     terrain_prior: do not reject compact cells connected to the ground under the

@@ -11,6 +11,14 @@ points' own sample, weight 1, the thin-plate penalty bridging the cells without 
 points. The robust surface's wobble between sparse scan lines and its bias under noisy
 cells go; measured in docs/algorithm.md, "Refit on the terrain points".
 
+With an automatic layout the refit may use more control points than the robust fit: the
+robust loop solves a dozen times and keeps :data:`o3d_terrain.terrain.AUTO_MAX_CONTROL_POINTS`
+per axis, the refit solves once, so it takes the automatic layout up to
+:data:`REFINE_MAX_CONTROL_POINTS` (one control point every 2 cells, at least 1 m; never
+fewer than the robust fit's), its knots placed as the robust fit's were (adaptive ones from
+the terrain cells). A wide frame's surface then follows terrain detail the robust layout's
+spacing could not (measured in docs/algorithm.md, "A finer layout for the refit").
+
 The sample of a cell is eq. 1 with the in-cell slope removed (the height of the least-squares
 plane of its terrain points at the cell centre minus their spread about it), at least that
 height minus ``noise_floor``: its points are all terrain, so eq. 1's "- sigma" (meant to
@@ -24,21 +32,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from .grid import MEASURED, quantize_points
+from .grid import MEASURED, HeightGrid, quantize_points
 from .segment import TerrainLabel, segment_points
-from .spline import GridBasis, TerrainSurface
+from .spline import GridBasis, TerrainSurface, clamped_knots
+from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
-__all__ = ["refine_surface", "REFINE_MIN_CELLS"]
+__all__ = ["refine_surface", "refit_layout", "REFINE_MIN_CELLS", "REFINE_MAX_CONTROL_POINTS"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points:
 #: fewer and the robust surface is kept (the penalty alone would shape the refit)
 REFINE_MIN_CELLS = 1.0
+#: most control points per axis of the refit's automatic layout: its one banded solve takes
+#: 4.3 ms at 40 x 40 on a KITTI frame against 2.2 ms at 32 x 32 (docs/algorithm.md, "A finer
+#: layout for the refit", with 48 and 64 measured)
+REFINE_MAX_CONTROL_POINTS = 40
 
 
 def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size: float,
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
-                   cell_plane: bool = True) -> tuple[TerrainSurface, int]:
+                   cell_plane: bool = True, max_control_points: int | None = None
+                   ) -> tuple[TerrainSurface, int]:
     """``(surface, cells)``: the surface's layout refitted to the points ``positions`` that
     the automatic labelling against ``surface`` calls terrain (module docstring), and the
     number of grid cells that held terrain points; ``(surface, cells)`` unchanged when fewer
@@ -48,7 +62,9 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     the mean data weight per control point (as the fit's); noise_floor: the largest amount a
     cell's sample sits below its terrain points' plane (m); sensor_origin: the sensor in the
     cloud's coordinates, for the labelling (its range term and its level); cell_plane: False =
-    eq. 1 about the cells' means, not their planes (as the fit's option)."""
+    eq. 1 about the cells' means, not their planes (as the fit's option); max_control_points:
+    None = the surface's layout and knots (a layout the caller chose), a number = the
+    automatic layout up to that many per axis (:func:`refit_layout`)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     # without the feet of objects: they lie within the threshold, and the cell samples (eq. 1
     # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
@@ -78,10 +94,42 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     sample = sample.ravel()[cells]
     x0, y0, z0 = surface.origin
     local = (region[0] - x0, region[1] - x0, region[2] - y0, region[3] - y0)
-    basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, (n0, n1), surface.degree, local,
-                      (surface.knots_x, surface.knots_y))
+    layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
+    if max_control_points is not None:
+        layout, knots = refit_layout(surface, grid, max_control_points, local)
+    basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
+                      knots)
     with one_blas_thread():  # a small banded solve: BLAS threads cost more than they give
         q = basis.solve_cells(cells, sample - z0, np.ones(cells.size), None, smoothing)
     refined = TerrainSurface(surface.degree, basis.knots_x, basis.knots_y, q, np.ones_like(q),
                              surface.origin, surface.cell_size)
     return refined, int(cells.size)
+
+
+def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,
+                 local: tuple[float, float, float, float]
+                 ) -> tuple[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """``(layout, (knots_x, knots_y))`` of the refit: per axis the automatic layout of
+    ``grid`` (:func:`o3d_terrain.terrain.default_control_points`) with at most ``most``
+    control points, never fewer than ``surface`` has; the surface's own knots when that is its
+    layout, else knots over ``local`` (the region relative to the surface's origin) that are
+    uniform where the surface's are and adaptive to the grid's measured cells where they are
+    not (:func:`o3d_terrain.terrain.knot_densities`)."""
+    n0, n1 = surface.control_points.shape
+    degree = surface.degree
+    auto = default_control_points(grid, degree, most=most)
+    layout = (max(n0, auto[0]), max(n1, auto[1]))
+    if layout == (n0, n1):
+        return layout, (surface.knots_x, surface.knots_y)
+    densities = None
+    if not (_uniform(surface.knots_x, n0, degree) and _uniform(surface.knots_y, n1, degree)):
+        densities = knot_densities(grid, layout, degree)
+    dx, dy = (None, None) if densities is None else densities
+    return layout, (clamped_knots(layout[0], degree, local[0], local[1], dx),
+                    clamped_knots(layout[1], degree, local[2], local[3], dy))
+
+
+def _uniform(knots: np.ndarray, n_ctrl: int, degree: int) -> bool:
+    """Whether a clamped knot vector's interior spans are equal (to 1e-9 of the domain)."""
+    spans = np.diff(knots[degree:n_ctrl + 1])
+    return bool(np.ptp(spans) <= 1e-9 * (knots[n_ctrl] - knots[degree]))

@@ -116,8 +116,10 @@ def test_the_stage_picks_the_knots_from_the_scan():
     stage = RationalBSplineTerrain()
     grid = GridQuantize().grid(p, plane=True, tilt_spread=stage.noise_floor)
     fit = stage.fit(grid, p)
-    assert np.ptp(np.diff(fit.surface.knots_x[3:-3])) > 0.5  # a vehicle's frame: adaptive
-    np.testing.assert_array_equal(fit.surface.knots_x, fit.robust_surface.knots_x)  # refit
+    assert np.ptp(np.diff(fit.robust_surface.knots_x[3:-3])) > 0.5  # a vehicle's frame: adaptive
+    # the refit's finer layout (o3d_terrain.refine) places its knots the same way
+    assert fit.surface.control_points.shape[0] > fit.robust_surface.control_points.shape[0]
+    assert np.ptp(np.diff(fit.surface.knots_x[3:-3])) > 0.5
     moved = p + np.array([5000.0, 0.0, 0.0])  # no points near the sensor: a top-down scan
     top_down = stage.fit(GridQuantize().grid(moved, plane=True, tilt_spread=stage.noise_floor),
                          moved)

@@ -316,7 +316,9 @@ def test_widened_blocks_keep_the_sides_of_objects_beside_rough_ground(monkeypatc
     tall = cloud.is_obstacle & (p[:, 2] - cloud.terrain_height(p[:, 0], p[:, 1]) > 0.3)
 
     def recall():
-        _, inliers = segment_terrain(p)
+        # on the robust fit's layout: the default refit's finer one (o3d_terrain.refine)
+        # follows these bumps, and the misfit no longer widens the threshold there
+        _, inliers = segment_terrain(p, control_points=(32, 32))
         terrain = np.zeros(len(p), bool)
         terrain[inliers] = True
         return float(np.mean(~terrain[tall]))

@@ -631,15 +631,17 @@ def test_a_top_down_scan_gets_the_finer_layout_and_follows_a_berm():
     """From the air the 32-per-axis layout (1.4 m apart on the 40 m scene) undercuts the 1 m
     berm by 0.4 m along its crest; a top-down scan (no points near sensor_origin) gets up to
     TOP_DOWN_MAX_CONTROL_POINTS per axis and follows it. The same cloud with its sensor
-    inside it keeps the vehicle layout."""
+    inside it keeps the vehicle layout in the robust fit (the refit takes up to
+    REFINE_MAX_CONTROL_POINTS: o3d_terrain.refine)."""
     from o3d_terrain import fit_terrain
     from o3d_terrain.synthetic import make_scene, sample_airborne
     cloud = sample_airborne(make_scene("ditch_berm", seed=0, obstacles=False), seed=0)
     p = cloud.positions
     centre = tuple(np.median(p, axis=0))
-    vehicle = fit_terrain(p, sensor_origin=centre)
+    vehicle = fit_terrain(p, sensor_origin=centre, control_points=(32, 32))  # its automatic one
     top_down = fit_terrain(p)
     assert vehicle.control_points.shape == (32, 32)
+    assert fit_terrain(p, sensor_origin=centre).control_points.shape == (40, 33)
     assert top_down.control_points.shape == (43, 33)  # one every 2 cells, 0.5 m cells
     true_z = cloud.terrain_height(p[:, 0], p[:, 1])
     berm = np.abs(cloud.world_positions[:, 1] - 6.0) < 0.5
