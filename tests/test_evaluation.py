@@ -269,6 +269,54 @@ def test_las_classes_with_another_label_set(tmp_path):
     assert np.array_equal(frame.obstacle, [0, 0, 0, 1, 0])
 
 
+def _labelled_ply(path: Path, ids, field: str = "label", dtype=np.int32):
+    import open3d as o3d
+
+    rng = np.random.default_rng(len(ids))
+    cloud = o3d.t.geometry.PointCloud()
+    cloud.point.positions = o3d.core.Tensor(rng.uniform(-5, 5, (len(ids), 3)).astype(np.float32))
+    cloud.point[field] = o3d.core.Tensor(np.asarray(ids, dtype)[:, None])
+    o3d.t.io.write_point_cloud(str(path), cloud)
+
+
+def test_labelled_ply_and_pcd_clouds(tmp_path):
+    ids = [1, 3, 0, 4, 19, 10]
+    _labelled_ply(tmp_path / "a.ply", ids)
+    _labelled_ply(tmp_path / "b.pcd", ids, field="scalar_Classification", dtype=np.float32)
+    frames, failures = ds.iter_frames(ds.open_dataset(tmp_path, labels="rellis3d"))
+    assert not failures and [f.name for f in frames] == ["a.ply", "b.pcd"]
+    for frame in frames:
+        assert np.array_equal(frame.is_ground, [1, 1, 0, 0, 0, 1])
+        assert np.array_equal(frame.scored, [1, 1, 0, 1, 1, 1])
+        assert np.array_equal(frame.obstacle, [0, 0, 0, 1, 0, 0])
+    assert "scalar_Classification" in frames[1].notes[0]
+    # no ontology in the file: the caller names one
+    with pytest.raises(InputError, match="--ground-labels"):
+        ds.open_dataset(tmp_path / "a.ply")
+    frame, = ds.open_dataset(tmp_path / "a.ply", labels=ds.LabelSet("x", (0,)))
+    assert np.array_equal(frame.is_ground, [0, 0, 1, 0, 0, 0])
+    # a misspelt attribute, non-integer labels, a file without labels: reported, not raised
+    bad, = ds.open_dataset(tmp_path / "a.ply", labels="rellis3d", label_field="lable")
+    assert isinstance(bad, ds.FrameFailure) and "did you mean 'label'" in bad.reason
+    _labelled_ply(tmp_path / "c.ply", [0.5, 1.0, 2.0], dtype=np.float32)
+    bad, = ds.open_dataset(tmp_path / "c.ply", labels="rellis3d")
+    assert "non-integer" in bad.reason
+    _labelled_ply(tmp_path / "d.ply", [1, 2, 3], field="intensity")
+    bad, = ds.open_dataset(tmp_path / "d.ply", labels="rellis3d")
+    assert "no label attribute" in bad.reason and "intensity" in bad.reason
+
+
+def test_eval_segmentation_on_labelled_ply(tmp_path, capsys):
+    pytest.importorskip("o3d_terrain.api")
+    _labelled_ply(tmp_path / "scan.ply", [1, 3, 0, 4, 19, 10] * 20)
+    assert _cli(["eval", "segmentation", str(tmp_path / "scan.ply"), "-m", "ransac_plane",
+                 "--json", "--ground-labels", "1,3,10", "--ignore-labels", "0"]) == 0
+    frame = json.loads(capsys.readouterr().out)[0]["frames"][0]
+    assert frame["true_positive"] + frame["false_negative"] == 60
+    assert _cli(["eval", "segmentation", str(tmp_path / "scan.ply"), "-m", "ransac_plane"]) == 2
+    assert "--labels: " in capsys.readouterr().err
+
+
 def test_unknown_sources_name_the_fix(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         ds.open_dataset(tmp_path / "missing")

@@ -37,8 +37,10 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     seg = sub.add_parser(
         "segmentation", help="ground precision, recall, F1 and obstacle recall per frame",
         description="Score ground segmentation on labelled frames: SemanticKITTI sequence "
-                    "folders (velodyne/ + labels/), LAS/LAZ files or folders (class 2 = "
-                    "ground), or synthetic:NAME[,NAME...][:stereo|:solid_state] scenes.")
+                    "folders (velodyne/ + labels/) or folders of them, LAS/LAZ files or folders "
+                    "(class 2 = ground), PLY/PCD clouds with a label attribute (with --labels "
+                    "or --ground-labels), or synthetic:NAME[,NAME...][:stereo|:solid_state] "
+                    "scenes.")
     seg.add_argument("datasets", nargs="+", metavar="DATASET")
     seg.add_argument("--method", "-m", action="append", default=[], metavar="NAME",
                      help="o3d_terrain (default) or a peer: " + ", ".join(PEERS)
@@ -57,6 +59,10 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     seg.add_argument("--obstacle-labels", metavar="IDS",
                      help="comma-separated label ids that count for obstacle recall (replacing "
                           "the set's; 'all' = every scored label that is not ground)")
+    seg.add_argument("--label-field", metavar="NAME",
+                     help="the per-point label attribute of PLY/PCD clouds (default: the first "
+                          "of label, labels, semantic, class, classification and CloudCompare's "
+                          "scalar_ names present)")
     seg.add_argument("--limit", type=int, default=None, help="at most this many frames each")
     seg.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes")
     seg.add_argument("--output", "-o", metavar="DIR",
@@ -161,12 +167,22 @@ def run_segmentation_command(args: argparse.Namespace) -> int:
     if args.limit is not None and args.limit < 1:
         raise ConfigError(Problem("--limit", f"must be >= 1, got {args.limit}"))
     labels = _label_set(args)
+    if labels is None:
+        from .datasets import LABEL_SETS, labelled_clouds
+
+        clouds = [d for d in args.datasets if labelled_clouds(d)]
+        if clouds:
+            raise ConfigError(Problem(
+                "--labels", f"{clouds[0]}: a PLY/PCD cloud carries label ids but no ontology",
+                "say which ids are ground: --labels NAME (" + ", ".join(LABEL_SETS)
+                + ") or --ground-labels IDS"))
     if labels is not None and not args.json:
         print(f"label set {labels.describe()}", file=sys.stderr)
     reports = []
     for dataset in args.datasets:
         for method in methods:
-            frames = open_dataset(dataset, seed=args.seed, limit=args.limit, labels=labels)
+            frames = open_dataset(dataset, seed=args.seed, limit=args.limit, labels=labels,
+                                  label_field=args.label_field)
             if method in (OURS, "ours"):
                 run: Any = ours(**options)
             else:

@@ -352,6 +352,79 @@ def las_frames(path: str | os.PathLike, *, labels: str | LabelSet = "asprs"
 
 
 # ---------------------------------------------------------------------------------------------
+# PLY / PCD clouds with a per-point label attribute
+
+
+#: the per-point label attributes a labelled PLY/PCD cloud is searched for, in this order (as
+#: labelling tools write them: CloudCompare's scalar fields get the ``scalar_`` prefix)
+LABEL_FIELDS = ("label", "labels", "semantic", "semantic_label", "class", "classification",
+                "scalar_label", "scalar_Label", "scalar_Classification", "scalar_classification")
+#: extensions of labelled clouds read with Open3D
+LABELLED_CLOUD_EXTENSIONS = (".ply", ".pcd")
+
+
+def read_labelled_cloud(path: str | os.PathLike, *, labels: str | LabelSet,
+                        field: str | None = None) -> LabelledFrame:
+    """A PLY/PCD cloud whose points carry a label attribute (``field``, default the first of
+    :data:`LABEL_FIELDS` present), scored by the :class:`LabelSet` ``labels``: such a file
+    carries no ontology, so the caller names it. The frame's kind is a vehicle's scan when
+    points lie around the origin (:func:`o3d_terrain.segment.sensor_in_cloud`), else aerial."""
+    from ..io import read_cloud
+    from ..segment import sensor_in_cloud
+
+    path = Path(path)
+    labels = label_set(labels)
+    cloud = read_cloud(path)
+    present = [name for name in cloud.point if name != "positions"]
+    if field is None:
+        found = [name for name in LABEL_FIELDS if name in present]
+        if not found:
+            raise InputError(f"{path.name}: no label attribute ({', '.join(LABEL_FIELDS)}); "
+                             f"its attributes: {', '.join(present) or 'none'}; name one with "
+                             "--label-field")
+        field = found[0]
+    elif field not in present:
+        hint = difflib.get_close_matches(field, present, n=1)
+        raise InputError(f"{path.name}: no attribute '{field}'"
+                         + (f"; did you mean '{hint[0]}'?" if hint else
+                            f"; its attributes: {', '.join(present) or 'none'}"))
+    values = np.asarray(cloud.point[field].numpy()).reshape(-1)
+    finite = np.isfinite(values)
+    if not np.all(values[finite] == np.round(values[finite])):
+        raise InputError(f"{path.name}: the attribute '{field}' holds non-integer values; "
+                         "labels must be integer ids (name another one with --label-field)")
+    ids = np.where(finite, values, -1).astype(np.int64)
+    positions = np.asarray(cloud.point.positions.numpy(), dtype=np.float64)
+    is_ground, scored, obstacle = labels.masks(ids, np.isfinite(positions).all(axis=1) & finite)
+    return LabelledFrame(
+        name=path.name,
+        positions=positions,
+        is_ground=is_ground,
+        scored=scored,
+        obstacle=obstacle,
+        kind="vehicle_lidar" if sensor_in_cloud(positions) else "aerial",
+        source=str(path),
+        notes=(f"labels from the attribute '{field}'",) + _ground_notes(is_ground, scored,
+                                                                           labels),
+    )
+
+
+def labelled_cloud_frames(path: str | os.PathLike, *, labels: str | LabelSet,
+                          field: str | None = None) -> Iterator[FrameOrFailure]:
+    """Frames of one labelled PLY/PCD cloud or of every one in a folder
+    (:func:`read_labelled_cloud`); a file that cannot be read is a :class:`FrameFailure`."""
+    labels = label_set(labels)
+    path = Path(path)
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in LABELLED_CLOUD_EXTENSIONS) \
+        if path.is_dir() else [path]
+    for file in files:
+        try:
+            yield read_labelled_cloud(file, labels=labels, field=field)
+        except (InputError, OSError, ValueError) as exc:
+            yield FrameFailure(file.name, str(file), str(exc))
+
+
+# ---------------------------------------------------------------------------------------------
 # synthetic scenes
 
 
@@ -454,16 +527,19 @@ def synthetic_scene_names() -> tuple[str, ...]:
 
 
 def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = None,
-                 labels: str | LabelSet | None = None) -> Iterator[FrameOrFailure]:
+                 labels: str | LabelSet | None = None, label_field: str | None = None
+                 ) -> Iterator[FrameOrFailure]:
     """Frames of a dataset given as a path or ``synthetic:NAME[,NAME...][:SENSOR]`` (SENSOR one
     of :data:`SYNTHETIC_SENSORS`, default lidar).
 
     A sequence folder in the SemanticKITTI file format (``velodyne/``, or RELLIS-3D's
     ``os1_cloud_node_kitti_bin/``: :data:`SEQUENCE_LAYOUTS`) is read as one sequence; a folder
     of such sequence folders as all of them (``limit`` frames from each); a LAS/LAZ file or a
-    folder of them as classified tiles. ``labels``: the :class:`LabelSet` (or its name) that
-    says which label ids are ground; None = the format's own (SemanticKITTI's, RELLIS-3D's
-    for its layout, ASPRS for LAS). Synthetic scenes carry their truth and ignore it.
+    folder of them as classified tiles; a PLY/PCD cloud with a label attribute, or a folder of
+    them (:func:`read_labelled_cloud`, its attribute ``label_field`` or found by name).
+    ``labels``: the :class:`LabelSet` (or its name) that says which label ids are ground; None
+    = the format's own (SemanticKITTI's, RELLIS-3D's for its layout, ASPRS for LAS; a PLY/PCD
+    cloud has none and needs it). Synthetic scenes carry their truth and ignore it.
     """
     if labels is not None:
         labels = label_set(labels)  # a wrong name fails here, before any frame is read
@@ -485,6 +561,13 @@ def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = 
         return (frame for folder in sequences for frame in
                 semantic_kitti_frames(folder, limit=limit, labels=labels,
                                       prefix=f"{folder.name}/"))
+    if labelled_clouds(path):
+        if labels is None:
+            raise InputError(f"{path}: a PLY/PCD cloud carries label ids but no ontology; say "
+                             "which ids are ground (--labels NAME or --ground-labels IDS; "
+                             f"named sets: {', '.join(LABEL_SETS)})")
+        frames = labelled_cloud_frames(path, labels=labels, field=label_field)
+        return (f for i, f in enumerate(frames) if limit is None or i < limit)
     if path.is_dir() or path.suffix.lower() in (".las", ".laz"):
         frames = las_frames(path, labels="asprs" if labels is None else labels)
         return (f for i, f in enumerate(frames) if limit is None or i < limit)
@@ -492,8 +575,20 @@ def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = 
         raise InputError(f"{path}: no such file or folder")
     raise InputError(
         f"{path}: not a labelled dataset; give a SemanticKITTI sequence folder (with velodyne/ "
-        "and labels/), a folder of them, a LAS/LAZ file or folder, or synthetic:NAME"
+        "and labels/), a folder of them, a LAS/LAZ file or folder, a PLY/PCD cloud with a "
+        "label attribute, or synthetic:NAME"
     )
+
+
+def labelled_clouds(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a PLY/PCD file, or a folder holding some and no LAS/LAZ tile."""
+    path = Path(path)
+    if path.is_file():
+        return path.suffix.lower() in LABELLED_CLOUD_EXTENSIONS
+    if not path.is_dir():
+        return False
+    suffixes = {p.suffix.lower() for p in path.iterdir()}
+    return bool(suffixes & set(LABELLED_CLOUD_EXTENSIONS)) and not suffixes & {".las", ".laz"}
 
 
 def data_root() -> Path | None:
