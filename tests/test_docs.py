@@ -35,6 +35,30 @@ def test_quickstart_code_runs(tmp_path, monkeypatch):
         exec(compile(block, "quickstart.md", "exec"), namespace)  # noqa: S102 - our own docs
 
 
+def test_evaluation_page_scan_against_a_raster_runs(tmp_path, monkeypatch):
+    """docs/evaluation.md's scan of dem.tif and its comparison from code, as printed (the
+    shared data folder put where the page's relative paths point)."""
+    from o3d_terrain.evaluation.datasets import data_root
+
+    root = data_root()
+    if root is None or not (root / "dem_1m" / "dem.tif").exists():
+        pytest.skip("needs ../shared/data/dem_1m/dem.tif (or $O3D_TERRAIN_DATA)")
+    pytest.importorskip("tifffile", reason="the dem extra reads the GeoTIFF's georeferencing")
+    work = tmp_path / "project"
+    work.mkdir()
+    (tmp_path / "shared").mkdir()
+    (tmp_path / "shared" / "data").symlink_to(root, target_is_directory=True)
+    monkeypatch.chdir(work)
+    blocks = [b for b in _python_blocks(DOCS / "evaluation.md")
+              if "scan.xyz" in b or "evaluate_terrain_against_raster" in b]
+    assert len(blocks) == 2
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "evaluation.md", "exec"), namespace)  # noqa: S102 - our own docs
+    # the figure the page prints (0.030 m) within what a platform's float rounding moves
+    assert namespace["result"].stats["height_rmse_m"] == pytest.approx(0.030, abs=0.004)
+
+
 def test_relative_links_resolve():
     missing = []
     for page in [REPO / "README.md", *DOCS.glob("*.md")]:
