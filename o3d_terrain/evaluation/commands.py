@@ -168,14 +168,12 @@ def run_segmentation_command(args: argparse.Namespace) -> int:
         raise ConfigError(Problem("--limit", f"must be >= 1, got {args.limit}"))
     labels = _label_set(args)
     if labels is None:
-        from .datasets import LABEL_SETS, labelled_clouds
+        from .datasets import NAME_THE_LABELS, NO_ONTOLOGY, labelled_clouds
 
         clouds = [d for d in args.datasets if labelled_clouds(d)]
         if clouds:
-            raise ConfigError(Problem(
-                "--labels", f"{clouds[0]}: a PLY/PCD cloud carries label ids but no ontology",
-                "say which ids are ground: --labels NAME (" + ", ".join(LABEL_SETS)
-                + ") or --ground-labels IDS"))
+            raise ConfigError(Problem("--labels", f"{clouds[0]}: {NO_ONTOLOGY}",
+                                      NAME_THE_LABELS))
     if labels is not None and not args.json:
         print(f"label set {labels.describe()}", file=sys.stderr)
     reports = []
@@ -255,15 +253,12 @@ def _label_set(args: argparse.Namespace):
             base = label_set(args.labels)
         except InputError as exc:
             raise ConfigError(Problem("--labels", str(exc))) from exc
-    every_other = obstacle == "all"  # obstacles: every scored label that is not ground
     try:
-        if args.labels is None:
-            changed = LabelSet("custom", ground, ignored or (), None if every_other else obstacle)
+        if args.labels is None:  # obstacles: every scored label that is not ground, or those
+            changed = LabelSet("custom", ground, ignored or (),
+                               None if obstacle == "all" else obstacle)
         else:
-            changed = base.with_ids(ground=ground, ignored=ignored,
-                                    obstacle=None if every_other else obstacle)
-            if every_other:
-                changed = LabelSet(f"{base.name} (changed)", changed.ground, changed.ignored)
+            changed = base.with_ids(ground=ground, ignored=ignored, obstacle=obstacle)
     except InputError as exc:
         raise ConfigError(Problem("--ground-labels/--ignore-labels/--obstacle-labels",
                                   str(exc))) from exc

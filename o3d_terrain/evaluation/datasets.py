@@ -28,6 +28,7 @@ the presets are in :data:`LABEL_SETS`.
 from __future__ import annotations
 
 import difflib
+import itertools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,15 +92,16 @@ class LabelSet:
 
     def with_ids(self, *, ground: Sequence[int] | None = None,
                  ignored: Sequence[int] | None = None,
-                 obstacle: Sequence[int] | None = None) -> "LabelSet":
-        """This set with the parts given replaced (the name marks the change)."""
+                 obstacle: Sequence[int] | str | None = None) -> "LabelSet":
+        """This set with the parts given replaced (the name marks the change); ``obstacle``
+        "all" = every scored label that is not ground."""
         if ground is None and ignored is None and obstacle is None:
             return self
         return LabelSet(
             f"{self.name} (changed)",
             tuple(self.ground if ground is None else ground),
             tuple(self.ignored if ignored is None else ignored),
-            self.obstacle if obstacle is None else tuple(obstacle))
+            self.obstacle if obstacle is None else None if obstacle == "all" else tuple(obstacle))
 
     def describe(self) -> str:
         obstacle = "every other scored label" if self.obstacle is None else \
@@ -344,9 +346,16 @@ def las_frames(path: str | os.PathLike, *, labels: str | LabelSet = "asprs"
         files = [path]
     else:
         raise InputError(f"{path}: no such file or folder")
+    yield from _read_each(files, lambda file: read_las_frame(file, labels=labels))
+
+
+def _read_each(files: Iterable[Path], read: Callable[[Path], LabelledFrame]
+               ) -> Iterator[FrameOrFailure]:
+    """``read(file)`` for each file in turn, a :class:`FrameFailure` for one that cannot be
+    read (the batch goes on)."""
     for file in files:
         try:
-            yield read_las_frame(file, labels=labels)
+            yield read(file)
         except (InputError, OSError, ValueError) as exc:
             yield FrameFailure(file.name, str(file), str(exc))
 
@@ -361,6 +370,10 @@ LABEL_FIELDS = ("label", "labels", "semantic", "semantic_label", "class", "class
                 "scalar_label", "scalar_Label", "scalar_Classification", "scalar_classification")
 #: extensions of labelled clouds read with Open3D
 LABELLED_CLOUD_EXTENSIONS = (".ply", ".pcd")
+#: what such a cloud lacks, and the fix (open_dataset's error, the CLI's usage error)
+NO_ONTOLOGY = "a PLY/PCD cloud carries label ids but no ontology"
+NAME_THE_LABELS = ("say which ids are ground: --labels NAME (" + ", ".join(LABEL_SETS)
+                   + ") or --ground-labels IDS")
 
 
 def read_labelled_cloud(path: str | os.PathLike, *, labels: str | LabelSet,
@@ -417,11 +430,8 @@ def labelled_cloud_frames(path: str | os.PathLike, *, labels: str | LabelSet,
     path = Path(path)
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in LABELLED_CLOUD_EXTENSIONS) \
         if path.is_dir() else [path]
-    for file in files:
-        try:
-            yield read_labelled_cloud(file, labels=labels, field=field)
-        except (InputError, OSError, ValueError) as exc:
-            yield FrameFailure(file.name, str(file), str(exc))
+    yield from _read_each(files, lambda file: read_labelled_cloud(file, labels=labels,
+                                                                   field=field))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -563,14 +573,12 @@ def open_dataset(spec: str | os.PathLike, *, seed: int = 0, limit: int | None = 
                                       prefix=f"{folder.name}/"))
     if labelled_clouds(path):
         if labels is None:
-            raise InputError(f"{path}: a PLY/PCD cloud carries label ids but no ontology; say "
-                             "which ids are ground (--labels NAME or --ground-labels IDS; "
-                             f"named sets: {', '.join(LABEL_SETS)})")
-        frames = labelled_cloud_frames(path, labels=labels, field=label_field)
-        return (f for i, f in enumerate(frames) if limit is None or i < limit)
+            raise InputError(f"{path}: {NO_ONTOLOGY}; {NAME_THE_LABELS}")
+        return itertools.islice(labelled_cloud_frames(path, labels=labels, field=label_field),
+                                limit)
     if path.is_dir() or path.suffix.lower() in (".las", ".laz"):
-        frames = las_frames(path, labels="asprs" if labels is None else labels)
-        return (f for i, f in enumerate(frames) if limit is None or i < limit)
+        return itertools.islice(las_frames(path, labels="asprs" if labels is None else labels),
+                                limit)
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
     raise InputError(

@@ -491,8 +491,7 @@ class Raster:
     def slope_deg(self) -> np.ndarray:
         """Slope angle (degrees) by central differences over one cell each way; NaN on the
         border and where the cell or one of its 4 neighbours has no data."""
-        d_row, d_col = np.gradient(self.heights, self.cell_size)
-        slope = slope_deg_from_gradient(d_col, d_row)  # the row axis runs south: sign irrelevant
+        slope = dem_slope_deg(self.heights, self.cell_size)  # rows run south: sign irrelevant
         slope[np.isnan(self.heights)] = np.nan
         slope[[0, -1], :] = np.nan
         slope[:, [0, -1]] = np.nan
