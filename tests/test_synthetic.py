@@ -10,7 +10,10 @@ import pytest
 from o3d_terrain.errors import ConfigError, InputError
 from o3d_terrain.synthetic import (
     SCENES,
+    GridRelief,
     Obstacle,
+    Plane,
+    Scene,
     make_scene,
     render_stereo_pair,
     rotation_matrix,
@@ -184,6 +187,52 @@ def test_pitch_down_makes_the_ground_ahead_rise_in_the_sensor_frame():
     ahead = cloud.positions[(cloud.positions[:, 0] > 10) & (np.abs(cloud.positions[:, 1]) < 2)]
     behind = cloud.positions[(cloud.positions[:, 0] < -3) & (np.abs(cloud.positions[:, 1]) < 2)]
     assert ahead[:, 2].mean() > behind[:, 2].mean() + 0.5
+
+
+def test_grid_relief_interpolates_its_grid_and_extends_level_outside():
+    rng = np.random.default_rng(3)
+    heights = rng.normal(0.0, 2.0, (30, 40))
+    relief = GridRelief(heights, 2.0, x0=-10.0, y0=5.0)
+    jj, ii = np.meshgrid(np.arange(30), np.arange(40), indexing="ij")
+    np.testing.assert_allclose(relief.height(-10.0 + 2.0 * ii, 5.0 + 2.0 * jj), heights,
+                               atol=1e-9)
+    # a plane's grid gives the plane and its slopes between the nodes (row j is y = y0 + j·cell)
+    plane = 3.0 + 0.2 * (-10.0 + 2.0 * ii) - 0.1 * (5.0 + 2.0 * jj)
+    relief = GridRelief(plane, 2.0, x0=-10.0, y0=5.0)
+    x, y = rng.uniform(-10.0, 68.0, 200), rng.uniform(5.0, 63.0, 200)
+    np.testing.assert_allclose(relief.height(x, y), 3.0 + 0.2 * x - 0.1 * y, atol=1e-9)
+    gx, gy = relief.gradient(x, y)
+    np.testing.assert_allclose(gx, 0.2, atol=1e-9)
+    np.testing.assert_allclose(gy, -0.1, atol=1e-9)
+    # beyond the grid's east edge: the edge's height, level along x
+    gx, gy = relief.gradient(np.array([100.0]), np.array([20.0]))
+    assert gx[0] == 0.0 and gy[0] == pytest.approx(-0.1)
+    assert relief.height(100.0, 20.0) == pytest.approx(3.0 + 0.2 * 68.0 - 0.1 * 20.0)
+    with pytest.raises(InputError, match="4 x 4"):
+        GridRelief(np.zeros((3, 10)), 1.0)
+    with pytest.raises(InputError, match="no-data"):
+        GridRelief(np.where(ii > 3, 1.0, np.nan), 1.0)
+    with pytest.raises(InputError, match="cell_size"):
+        GridRelief(heights, 0.0)
+
+
+def test_a_sensor_on_the_terrain_tilts_with_the_slope_under_it():
+    slope = math.tan(math.radians(15.0))
+    scene = Scene("slope", (Plane(slope_x=slope),), region=(-30.0, 30.0, -30.0, 30.0))
+    for yaw in (0.0, 90.0, 200.0):
+        cloud = sample_lidar(scene, on_terrain=True, yaw_deg=yaw, range_noise=0.0, beams=16,
+                             azimuth_steps=360)
+        # the plane is level in the sensor's frame, 1.8 m below it (the mast along the normal)
+        np.testing.assert_allclose(cloud.positions[:, 2], -1.8, atol=1e-6)
+        r = cloud.world_from_sensor[:3, :3]
+        np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+        heading = math.radians(yaw)
+        assert math.atan2(r[1, 0], r[0, 0]) == pytest.approx(math.atan2(
+            math.sin(heading), math.cos(heading)), abs=1e-9)
+    # without it the sensor stays level: the same plane rises 15 degrees ahead
+    level = sample_lidar(scene, range_noise=0.0, beams=16, azimuth_steps=360)
+    ahead = level.positions[(level.positions[:, 0] > 5) & (np.abs(level.positions[:, 1]) < 1)]
+    assert np.all(ahead[:, 2] > -1.8 + 0.2 * (ahead[:, 0] - 0.5))
 
 
 def test_tall_obstacle_casts_an_occlusion_shadow():

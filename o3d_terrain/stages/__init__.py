@@ -15,3 +15,6 @@ __all__ += ["ObstacleDetector", "TraversabilityCost"]
 from .terrain import RationalBSplineTerrain, Segmenter, SlopeEstimator
 
 __all__ += ["RationalBSplineTerrain", "SlopeEstimator", "Segmenter"]
+from .level import LevelCloud
+
+__all__ += ["LevelCloud"]

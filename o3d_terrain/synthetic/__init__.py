@@ -37,7 +37,7 @@ from .sensors import (
     terrain_rmse,
 )
 from .sequence import sequence_ground, synthetic_sequence
-from .terrain import Hill, Plane, Ramp, Ridge, Roughness, Valley
+from .terrain import GridRelief, Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
     "OBSTACLE", "OBSTACLE_SHAPES", "OUTLIER", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN",

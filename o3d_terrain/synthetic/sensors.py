@@ -48,15 +48,33 @@ def rotation_matrix(*, yaw_deg: float = 0.0, roll_deg: float = 0.0, pitch_deg: f
 
 
 def sensor_pose(scene: Scene, *, sensor_xy=None, sensor_height: float, yaw_deg: float = 0.0,
-                tilt_deg=(0.0, 0.0)) -> np.ndarray:
-    """4×4 world_from_sensor for a sensor ``sensor_height`` metres above the terrain at sensor_xy."""
+                tilt_deg=(0.0, 0.0), on_terrain: bool = False) -> np.ndarray:
+    """4×4 world_from_sensor for a sensor ``sensor_height`` metres above the terrain at sensor_xy.
+
+    ``on_terrain=True`` mounts it on a vehicle standing on the slope there: the sensor's z axis
+    is the terrain normal at sensor_xy, its x axis the slope's tangent heading ``yaw_deg``,
+    and it stands ``sensor_height`` along the normal; ``tilt_deg`` is then the mount's own tilt
+    on top of the vehicle's.
+    """
     x, y = scene.sensor_xy if sensor_xy is None else sensor_xy
     _check_finite("sensor_xy", (x, y))
     _check_finite("tilt_deg", tilt_deg, length=2)
     _check_finite("sensor_height", (sensor_height, yaw_deg))
     pose = np.eye(4)
-    pose[:3, :3] = rotation_matrix(yaw_deg=yaw_deg, roll_deg=tilt_deg[0], pitch_deg=tilt_deg[1])
-    pose[:3, 3] = (x, y, float(scene.height(x, y)) + sensor_height)
+    ground = np.array([x, y, float(scene.height(x, y))])
+    if on_terrain:
+        mount = rotation_matrix(roll_deg=tilt_deg[0], pitch_deg=tilt_deg[1])
+        up = np.asarray(scene.normal(x, y), dtype=np.float64).reshape(3)
+        gx, gy = (float(g) for g in scene.gradient(x, y))
+        cx, cy = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+        forward = np.array([cx, cy, gx * cx + gy * cy])  # along the slope, heading yaw_deg
+        forward /= np.linalg.norm(forward)
+        pose[:3, :3] = np.column_stack([forward, np.cross(up, forward), up]) @ mount
+        pose[:3, 3] = ground + sensor_height * up
+    else:
+        pose[:3, :3] = rotation_matrix(yaw_deg=yaw_deg, roll_deg=tilt_deg[0],
+                                       pitch_deg=tilt_deg[1])
+        pose[:3, 3] = (x, y, ground[2] + sensor_height)
     return pose
 
 
@@ -373,7 +391,7 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
                  yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), beams: int = 32,
                  azimuth_steps: int = 900, fov_deg=(-25.0, 3.0), min_range: float = 1.0,
                  max_range: float = 80.0, range_noise: float = 0.02, outlier_fraction: float = 0.0,
-                 seed: int = 0) -> SyntheticCloud:
+                 on_terrain: bool = False, seed: int = 0) -> SyntheticCloud:
     """A spinning multi-beam lidar frame.
 
     ``beams`` channels with elevations evenly spread over ``fov_deg`` (degrees, in the sensor
@@ -383,6 +401,8 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
     (dust, multipath): moved along their beam to between 0.5 and 1.5 times the true range
     (``is_outlier``, ground_truth 3). The defaults give about 20k points on the 40 m × 30 m scenes;
     ``beams=64, azimuth_steps=1800`` gives a 360° frame of about 80k-120k points.
+    ``on_terrain=True``: the sensor tilts with the slope under it, as on a vehicle
+    (:func:`sensor_pose`).
     """
     _check_int(beams=beams, azimuth_steps=azimuth_steps)
     _check_positive(max_range=max_range, sensor_height=sensor_height)
@@ -391,7 +411,7 @@ def sample_lidar(scene: Scene, *, sensor_xy=None, sensor_height: float = 1.8,
         raise InputError(f"fov_deg must be (low, high) with -90 <= low <= high <= 90; got {fov_deg}")
     _check_non_negative(range_noise=range_noise, min_range=min_range)
     pose = sensor_pose(scene, sensor_xy=sensor_xy, sensor_height=sensor_height, yaw_deg=yaw_deg,
-                       tilt_deg=tilt_deg)
+                       tilt_deg=tilt_deg, on_terrain=on_terrain)
     elevation = np.radians(np.linspace(fov_deg[0], fov_deg[1], beams))
     azimuth = np.arange(azimuth_steps) * (2 * math.pi / azimuth_steps)
     el, az = np.meshgrid(elevation, azimuth, indexing="ij")
@@ -426,7 +446,7 @@ def sample_solid_state(scene: Scene, *, sensor_xy=None, sensor_height: float = 1
                        yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), fov_deg: float = 70.0,
                        points: int = 100_000, min_range: float = 1.0, max_range: float = 80.0,
                        range_noise: float = 0.02, outlier_fraction: float = 0.0,
-                       seed: int = 0) -> SyntheticCloud:
+                       on_terrain: bool = False, seed: int = 0) -> SyntheticCloud:
     """A forward-looking solid-state lidar with a non-repetitive (rosette) scan pattern, as
     the prism-scanning units mounted on small off-road and mining vehicles have.
 
@@ -436,7 +456,8 @@ def sample_solid_state(scene: Scene, *, sensor_xy=None, sensor_height: float = 1
     ``fov_deg`` / 2 of it): no scan lines, denser at the centre, every ray's direction
     different. Returns hits between ``min_range`` and ``max_range`` metres with Gaussian range
     noise of ``range_noise`` metres along the beam, and a fraction ``outlier_fraction`` of
-    spurious returns as :func:`sample_lidar`; poses and frames as :func:`sample_lidar`.
+    spurious returns as :func:`sample_lidar`; poses (``on_terrain`` among them) and frames as
+    :func:`sample_lidar`.
     """
     _check_int(points=points)
     _check_positive(max_range=max_range, sensor_height=sensor_height, fov_deg=fov_deg,
@@ -445,7 +466,7 @@ def sample_solid_state(scene: Scene, *, sensor_xy=None, sensor_height: float = 1
         raise InputError(f"fov_deg must be at most 170 (a forward-looking unit); got {fov_deg}")
     _check_non_negative(range_noise=range_noise, min_range=min_range)
     pose = sensor_pose(scene, sensor_xy=sensor_xy, sensor_height=sensor_height, yaw_deg=yaw_deg,
-                       tilt_deg=tilt_deg)
+                       tilt_deg=tilt_deg, on_terrain=on_terrain)
     # the rose: the beam turns about the axis while its offset swings out to the edge of the
     # field of view and back, at rates whose ratio is irrational (the pattern never repeats)
     phase = np.arange(points) * (2 * math.pi * ROSETTE_TURNS / points)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 
 def _sigmoid(u: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * u))
@@ -191,4 +193,57 @@ class Roughness:
         return cls(waves)
 
 
-Feature = Plane | Hill | Ridge | Ramp | Valley | Roughness
+@dataclass(frozen=True, eq=False)
+class GridRelief:
+    """Heights on a regular grid (a surveyed elevation raster) as a smooth terrain: the
+    bicubic spline through the grid's heights (C², so the slope is defined everywhere and is
+    the spline's gradient).
+
+    ``heights[j, i]`` is the height at (x0 + i·cell_size, y0 + j·cell_size): row 0 is the
+    grid's lowest y (a GeoTIFF's rows run north to south, so pass ``raster[::-1]`` with y0
+    its southern row's centre). Outside the grid the edge heights extend level (gradient 0).
+    A scene over real terrain is ``Scene(name, (GridRelief(...),), obstacles, region=...)``
+    with a region inside the grid.
+    """
+
+    heights: np.ndarray
+    cell_size: float
+    x0: float = 0.0
+    y0: float = 0.0
+
+    def __post_init__(self):
+        from scipy.interpolate import RectBivariateSpline
+
+        heights = np.asarray(self.heights, dtype=np.float64)
+        if heights.ndim != 2 or min(heights.shape) < 4:
+            raise InputError(f"GridRelief needs a 2-D grid of at least 4 x 4 heights; got "
+                             f"shape {heights.shape}")
+        if not np.isfinite(heights).all():
+            raise InputError("GridRelief needs finite heights everywhere (fill the raster's "
+                             "no-data cells first)")
+        if not (math.isfinite(self.cell_size) and self.cell_size > 0):
+            raise InputError(f"GridRelief cell_size must be positive; got {self.cell_size}")
+        ys = self.y0 + self.cell_size * np.arange(heights.shape[0])
+        xs = self.x0 + self.cell_size * np.arange(heights.shape[1])
+        object.__setattr__(self, "heights", heights)
+        object.__setattr__(self, "_spline", RectBivariateSpline(ys, xs, heights, kx=3, ky=3, s=0))
+        object.__setattr__(self, "_bounds", (xs[0], xs[-1], ys[0], ys[-1]))
+
+    def _inside(self, x, y):
+        x_min, x_max, y_min, y_max = self._bounds
+        xc, yc = np.clip(x, x_min, x_max), np.clip(y, y_min, y_max)
+        return xc, yc, xc == x, yc == y
+
+    def height(self, x, y):
+        xc, yc, _, _ = self._inside(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        return self._spline.ev(yc, xc)
+
+    def gradient(self, x, y):
+        xc, yc, in_x, in_y = self._inside(np.asarray(x, dtype=np.float64),
+                                          np.asarray(y, dtype=np.float64))
+        gx = np.where(in_x, self._spline.ev(yc, xc, dy=1), 0.0)
+        gy = np.where(in_y, self._spline.ev(yc, xc, dx=1), 0.0)
+        return gx, gy
+
+
+Feature = Plane | Hill | Ridge | Ramp | Valley | Roughness | GridRelief

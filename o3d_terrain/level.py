@@ -1,0 +1,116 @@
+"""Levelling a tilted sensor's cloud with the direction of gravity.
+
+A vehicle on a 25° slope tilts its lidar by 25°: in the sensor's frame the ground it stands on
+is level and a slope facing the other way is 50° steep. The terrain is a height field over
+(x, y), so the fit is best where "up" is up: terrain slopes are then the world's, trees and
+walls vertical. The scan itself cannot say which way is up (the ground around a vehicle on a
+slope looks level to its sensor), but the vehicle's IMU can: at rest its accelerometer reads
+the reaction to gravity, the ``up`` direction in the sensor's frame. A sensor fixed on its
+mount at a known pitch has a constant ``up`` from its calibration.
+
+:func:`level_cloud` rotates a cloud about the sensor so that ``up`` becomes +z, by the
+smallest rotation (the heading is kept); :class:`~o3d_terrain.stages.LevelCloud` does the
+same in a pipeline. The surface fitted to the levelled cloud, its slopes and its labels are
+then in that frame; the labels still index the caller's points, since a rotation keeps
+their order. docs/algorithm.md, "A tilted vehicle on steep ground", measures what it gains.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any, Sequence
+
+import numpy as np
+import open3d as o3d
+
+from .errors import InputError
+
+__all__ = ["level_cloud", "levelling_transform"]
+
+
+def _vector(values: Any, name: str) -> np.ndarray:
+    try:
+        v = np.asarray(values, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be 3 numbers (x, y, z); got {values!r}") from None
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise InputError(f"{name} must be 3 finite numbers (x, y, z); got {values!r}")
+    return v
+
+
+def levelling_transform(up: Sequence[float], sensor_origin: Sequence[float] = (0.0, 0.0, 0.0)
+                        ) -> np.ndarray:
+    """4 × 4 ``levelled_from_cloud``: the smallest rotation taking ``up`` (any length, in the
+    cloud's coordinates) to +z, about ``sensor_origin`` (which stays where it is)."""
+    u = _vector(up, "up")
+    norm = float(np.linalg.norm(u))
+    if norm < 1e-9:
+        raise InputError("up must not be the zero vector: give the direction opposite to "
+                         "gravity in the cloud's coordinates (an IMU's accelerometer at rest)")
+    u = u / norm
+    c = float(u[2])  # cos of the tilt
+    axis = np.array([u[1], -u[0], 0.0])  # u x z: the axis that tips u onto z
+    s = float(np.linalg.norm(axis))
+    if s < 1e-12:
+        rotation = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])  # level or upside down
+    else:
+        k = axis / s
+        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        rotation = np.eye(3) + s * cross + (1.0 - c) * cross @ cross  # Rodrigues
+    origin = _vector(sensor_origin, "sensor_origin")
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = origin - rotation @ origin
+    return transform
+
+
+def tilt_deg(up: Sequence[float]) -> float:
+    """The angle between ``up`` and +z (degrees)."""
+    u = _vector(up, "up")
+    return math.degrees(math.atan2(math.hypot(u[0], u[1]), u[2]))
+
+
+def level_cloud(cloud: Any, up: Sequence[float], *,
+                sensor_origin: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[Any, np.ndarray]:
+    """``(levelled, levelled_from_cloud)``: the cloud rotated about ``sensor_origin`` so that
+    ``up`` (the direction opposite to gravity in the cloud's coordinates, e.g. an IMU's
+    accelerometer at rest in the sensor frame) is +z, and the 4 × 4 transform applied.
+
+    The cloud comes back as it came: an (N, 3) or (N, 4) numpy array (extra columns kept), a
+    legacy or a tensor Open3D point cloud (normals rotated too); the caller's is not modified.
+    Point order is kept, so indices from the levelled cloud (``segment_terrain``'s inliers)
+    index the caller's. Map the surface's frame back with ``np.linalg.inv(transform)``.
+
+    >>> import numpy as np, o3d_terrain
+    >>> up = (-np.sin(np.radians(20)), 0.0, np.cos(np.radians(20)))   # pitched 20 deg nose down
+    >>> levelled, transform = o3d_terrain.level_cloud(np.array([[10.0, 0.0, 0.0]]), up)
+    >>> levelled.round(3)                    # a point straight ahead of the sensor lies below it
+    array([[ 9.397,  0.   , -3.42 ]])
+    """
+    transform = levelling_transform(up, sensor_origin)
+    rotation, shift = transform[:3, :3], transform[:3, 3]
+    if isinstance(cloud, np.ndarray):
+        if cloud.ndim != 2 or cloud.shape[1] < 3 or not np.issubdtype(cloud.dtype, np.number):
+            raise InputError(f"a numpy cloud must be (N, 3) or (N, k >= 3) numbers; got shape "
+                             f"{cloud.shape}, dtype {cloud.dtype}")
+        out = np.array(cloud, dtype=np.result_type(cloud.dtype, np.float64), copy=True)
+        out[:, :3] = cloud[:, :3] @ rotation.T + shift
+        return out, transform
+    if isinstance(cloud, o3d.geometry.PointCloud):
+        out = copy.deepcopy(cloud)
+        out.transform(transform)  # rotates the normals too
+        return out, transform
+    if isinstance(cloud, o3d.t.geometry.PointCloud):
+        out = cloud.clone()
+        positions = out.point.positions
+        dtype = positions.dtype
+        out.point.positions = o3d.core.Tensor(
+            (positions.numpy().astype(np.float64) @ rotation.T + shift)).to(dtype)
+        if "normals" in out.point:
+            normals = out.point.normals
+            out.point.normals = o3d.core.Tensor(
+                normals.numpy().astype(np.float64) @ rotation.T).to(normals.dtype)
+        return out, transform
+    raise InputError(f"level_cloud takes a numpy array or an Open3D point cloud; got "
+                     f"{type(cloud).__name__}")
