@@ -101,6 +101,37 @@ def sites(heights: np.ndarray, count: int, seed: int = 0) -> list[tuple[int, int
             for _ in range(count)]
 
 
+def scan(scene: Scene, sensor: str, k: int, density: float = 6.0):
+    """Site ``k``'s cloud from ``sensor`` (``vehicle64``, ``vehicle16`` or ``airborne``)."""
+    if sensor == "airborne":
+        return sample_airborne(scene, density=density, seed=k)
+    return sample_lidar(scene, yaw_deg=float(np.random.default_rng(k).uniform(0, 360)),
+                        on_terrain=True, seed=k, **SENSORS[sensor])
+
+
+def site_frames(sensor: str, *, count: int = 8, scale: float = 1.0, seed: int = 0,
+                density: float = 6.0):
+    """The sites as labelled frames (``o3d_terrain.evaluation.datasets.LabelledFrame``, every
+    point scored, ground = a terrain hit) for ``benchmarks/run_all.py``: they need the
+    shared data folder (FileNotFoundError without it)."""
+    from o3d_terrain.evaluation.datasets import LabelledFrame
+
+    root = data_root()
+    if root is None or not (root / "dem_1m" / "dem.tif").exists():
+        raise FileNotFoundError("needs ../shared/data/dem_1m/dem.tif (or $O3D_TERRAIN_DATA)")
+    heights = read_raster(root / "dem_1m" / "dem.tif").heights.astype(np.float64)
+    for k, (row, col) in enumerate(sites(heights, count, seed)):
+        scene = site_scene(heights, row, col, seed=seed + k, scale=scale)
+        cloud = scan(scene, sensor, k, density)
+        obstacle = np.asarray(cloud.is_obstacle, dtype=bool)
+        yield LabelledFrame(
+            name=f"site {row},{col}", positions=np.asarray(cloud.positions, dtype=np.float64),
+            is_ground=~obstacle, scored=np.ones(len(obstacle), bool), obstacle=obstacle,
+            kind="aerial" if sensor == "airborne" else "vehicle_lidar",
+            sensor_height=None if sensor == "airborne" else SENSORS[sensor]["sensor_height"],
+            source=f"dem.tif sites, {sensor}")
+
+
 def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> tuple[float, float]:
     tp = float(np.sum(ground & truth))
     precision = tp / max(float(ground.sum()), 1.0)
@@ -142,14 +173,11 @@ def main() -> None:
         gx, gy = np.meshgrid(np.linspace(-HALF, HALF, 101), np.linspace(-HALF, HALF, 101))
         slope = scene.slope_deg(gx, gy)
         for sensor in sensors:
+            cloud = scan(scene, sensor, k, args.density)
             if sensor == "airborne":
-                cloud = sample_airborne(scene, density=args.density, seed=k)
                 kind, height, tilt = "aerial", None, 0.0
             else:
-                options = SENSORS[sensor]
-                cloud = sample_lidar(scene, yaw_deg=float(np.random.default_rng(k).uniform(0, 360)),
-                                     on_terrain=True, seed=k, **options)
-                kind, height = "vehicle_lidar", options["sensor_height"]
+                kind, height = "vehicle_lidar", SENSORS[sensor]["sensor_height"]
                 tilt = math.degrees(math.acos(min(1.0, cloud.world_from_sensor[2, 2])))
             positions = np.asarray(cloud.positions, dtype=np.float64)
             truth = ~cloud.is_obstacle
