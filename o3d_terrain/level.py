@@ -26,7 +26,7 @@ import open3d as o3d
 
 from .errors import InputError
 
-__all__ = ["level_cloud", "levelling_transform"]
+__all__ = ["level_cloud", "levelling_transform", "tilt_deg"]
 
 
 def _vector(values: Any, name: str) -> np.ndarray:

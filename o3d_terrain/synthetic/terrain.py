@@ -1,9 +1,9 @@
 """Analytic terrain features: each gives its exact height and gradient at any (x, y).
 
-A terrain is a sum of features. Every feature is smooth (C-infinity), so the slope is defined
-everywhere and equals the analytic gradient; heights and gradients are vectorised over numpy
-arrays of any shape. Coordinates are world metres: x forward (away from the sensor), y left,
-z up.
+A terrain is a sum of features. Every feature is smooth (C-infinity; a grid's relief,
+:class:`GridRelief`, C²), so the slope is defined everywhere and equals the analytic
+gradient; heights and gradients are vectorised over numpy arrays of any shape. Coordinates
+are world metres: x forward (away from the sensor), y left, z up.
 """
 
 from __future__ import annotations
