@@ -87,8 +87,9 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     ter.add_argument("--noise", type=float, default=0.02, help="height noise of DEM samples (m)")
     ter.add_argument("--obstacles", type=int, default=0, help="box obstacles per DEM window")
     ter.add_argument("--truth", metavar="DEM.tif",
-                     help="a surveyed elevation raster (metres, the cloud's coordinates after "
-                          "--pose): SOURCE is then a point cloud file, fitted and compared")
+                     help="a surveyed elevation raster, GeoTIFF or ESRI ASCII grid (.asc) "
+                          "(metres, the cloud's coordinates after --pose): SOURCE is then a "
+                          "point cloud file, fitted and compared")
     ter.add_argument("--truth-origin", type=float, nargs=2, metavar=("X", "Y"),
                      help="x, y of the raster's upper-left corner (instead of GeoTIFF tags)")
     ter.add_argument("--truth-cell-size", type=float, metavar="M",

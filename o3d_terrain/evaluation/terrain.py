@@ -34,7 +34,7 @@ from typing import Any, Callable, Sequence
 import cv2
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, did_you_mean
 from .metrics import height_rmse, slope_deg_from_gradient, slope_error_deg
 
 Fitter = Callable[[np.ndarray], Any]
@@ -502,7 +502,8 @@ def read_raster(path: str | os.PathLike, *, origin: Sequence[float] | None = Non
                 cell_size: float | None = None) -> Raster:
     """A single-band elevation raster with its georeferencing.
 
-    Pixel values are read by :func:`read_dem` (OpenCV). ``origin`` (x, y of the upper-left
+    An ESRI ASCII grid (``.asc``, ``.grd``: the header places it) is read by
+    :func:`read_ascii_grid`. Other pixel values are read by :func:`read_dem` (OpenCV). ``origin`` (x, y of the upper-left
     corner of the upper-left cell) and ``cell_size`` (m) place it; when not given they come
     from the GeoTIFF tags ModelPixelScale (33550) and ModelTiepoint (33922) (or an unrotated
     ModelTransformation, 34264), read with ``tifffile`` (the ``dem`` extra:
@@ -512,10 +513,15 @@ def read_raster(path: str | os.PathLike, *, origin: Sequence[float] | None = Non
     conversion is done).
     """
     path = Path(path)
-    heights = read_dem(path)
     if (origin is None) != (cell_size is None):
         raise InputError(f"{path}: origin and cell_size go together; give both or neither "
                          "(neither: the GeoTIFF tags are read)")
+    if path.suffix.lower() in ASCII_GRID_SUFFIXES:
+        raster = read_ascii_grid(path)
+        if origin is not None:  # the caller places it
+            raster = Raster(raster.heights, origin, cell_size, name=raster.name)
+        return raster
+    heights = read_dem(path)
     tags, why = _geotiff_tags(path)
     nodata = tags.get(_NODATA)
     if nodata is not None:
@@ -530,6 +536,80 @@ def read_raster(path: str | os.PathLike, *, origin: Sequence[float] | None = Non
             raise InputError(f"{path}: {why}")
         origin, cell_size = _georeference(path, tags)
     return Raster(heights, origin, cell_size, name=path.name)
+
+
+#: file suffixes read as ESRI ASCII grids
+ASCII_GRID_SUFFIXES = (".asc", ".grd")
+_ASCII_KEYS = ("ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize",
+               "nodata_value", "dx", "dy")
+
+
+def read_ascii_grid(path: str | os.PathLike) -> Raster:
+    """An ESRI ASCII grid (the common DEM exchange format): a header of ``ncols``, ``nrows``,
+    ``xllcorner``/``xllcenter``, ``yllcorner``/``yllcenter``, ``cellsize`` (or equal ``dx``
+    and ``dy``) and optionally ``NODATA_value``, then ``nrows`` rows of heights from north to
+    south. Cells at NODATA_value become NaN. Errors name the line and what is wrong."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii", errors="strict")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such DEM file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot be read as an ESRI ASCII grid ({exc})") from None
+    lines = text.splitlines()
+    header: dict[str, float] = {}
+    start = 0
+    for start, line in enumerate(lines):
+        parts = line.split()
+        if not parts:
+            continue
+        key = parts[0].lower()
+        if key[0].isdigit() or key[0] in "+-.":
+            break  # the first row of heights
+        if key not in _ASCII_KEYS or len(parts) != 2:
+            hint = did_you_mean(key, list(_ASCII_KEYS))
+            raise InputError(f"{path}: line {start + 1} ({line.strip()[:40]!r}) is not an ESRI "
+                             f"ASCII grid header line 'key value'"
+                             + (f" ({hint})" if hint else "")
+                             + f"; keys are {', '.join(_ASCII_KEYS)}")
+        try:
+            header[key] = float(parts[1])
+        except ValueError:
+            raise InputError(f"{path}: line {start + 1}: {parts[0]} must be a number, got "
+                             f"{parts[1]!r}") from None
+    else:
+        start = len(lines)
+    if "cellsize" not in header and "dx" in header and "dy" in header:
+        if not math.isclose(header["dx"], header["dy"], rel_tol=1e-9):
+            raise InputError(f"{path}: cells of {header['dx']} x {header['dy']} are not square; "
+                             "resample the grid to square cells")
+        header["cellsize"] = header["dx"]
+    missing = [k for k in ("ncols", "nrows", "cellsize") if k not in header]
+    if not any(k in header for k in ("xllcorner", "xllcenter")):
+        missing.append("xllcorner")
+    if not any(k in header for k in ("yllcorner", "yllcenter")):
+        missing.append("yllcorner")
+    if missing:
+        raise InputError(f"{path}: the ESRI ASCII grid header lacks {', '.join(missing)}")
+    ncols, nrows, cell = int(header["ncols"]), int(header["nrows"]), header["cellsize"]
+    if ncols != header["ncols"] or nrows != header["nrows"] or ncols < 1 or nrows < 1:
+        raise InputError(f"{path}: ncols and nrows must be positive integers, got "
+                         f"{header['ncols']:g} and {header['nrows']:g}")
+    try:
+        values = np.array(" ".join(lines[start:]).split(), dtype=np.float64)
+    except ValueError as exc:
+        raise InputError(f"{path}: the heights after the header are not all numbers "
+                         f"({exc})") from None
+    if values.size != ncols * nrows:
+        raise InputError(f"{path}: the header gives {nrows} rows of {ncols} heights "
+                         f"({nrows * ncols}), the file holds {values.size}")
+    heights = values.reshape(nrows, ncols)
+    if "nodata_value" in header:
+        heights[heights == header["nodata_value"]] = np.nan
+    # the lower-left corner (or centre) of the lower-left cell -> the upper-left corner
+    x0 = header["xllcorner"] if "xllcorner" in header else header["xllcenter"] - cell / 2
+    y_low = header["yllcorner"] if "yllcorner" in header else header["yllcenter"] - cell / 2
+    return Raster(heights, (x0, y_low + nrows * cell), cell, name=path.name)
 
 
 def _geotiff_tags(path: Path) -> tuple[dict[int, Any], str]:
