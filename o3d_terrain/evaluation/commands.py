@@ -87,13 +87,15 @@ def add_eval_commands(subparsers: argparse._SubParsersAction) -> argparse.Argume
     ter.add_argument("--noise", type=float, default=0.02, help="height noise of DEM samples (m)")
     ter.add_argument("--obstacles", type=int, default=0, help="box obstacles per DEM window")
     ter.add_argument("--truth", metavar="DEM.tif",
-                     help="a surveyed elevation raster, GeoTIFF or ESRI ASCII grid (.asc) "
-                          "(metres, the cloud's coordinates after --pose): SOURCE is then a "
-                          "point cloud file, fitted and compared")
+                     help="a surveyed elevation raster, GeoTIFF or ESRI ASCII grid (.asc), or "
+                          "a file of surveyed ground points (LAS/LAZ: its class 2), gridded at "
+                          "--truth-cell-size (default 1 m) (metres, the cloud's coordinates "
+                          "after --pose): SOURCE is then a point cloud file, fitted and compared")
     ter.add_argument("--truth-origin", type=float, nargs=2, metavar=("X", "Y"),
                      help="x, y of the raster's upper-left corner (instead of GeoTIFF tags)")
     ter.add_argument("--truth-cell-size", type=float, metavar="M",
-                     help="the raster's cell size in metres (with --truth-origin)")
+                     help="the raster's cell size in metres (with --truth-origin); for ground "
+                          "points the cell they are gridded at")
     ter.add_argument("--pose", metavar="FILE",
                      help="4x4 matrix (text) mapping the cloud's coordinates into the raster's")
     ter.add_argument("--support-distance", type=float, metavar="M",
@@ -341,10 +343,14 @@ def _terrain_against_truth(args: argparse.Namespace, options: dict[str, Any]):
                                 f"give a point cloud file ({', '.join(CLOUD_EXTENSIONS)})"))
     if not truth_path.is_file():
         problems.append(Problem("--truth", f"{truth_path}: no such file",
-                                "give an elevation raster (GeoTIFF)"))
-    if (args.truth_origin is None) != (args.truth_cell_size is None):
-        problems.append(Problem("--truth-origin" if args.truth_origin is None
-                                else "--truth-cell-size", "missing",
+                                "give an elevation raster (GeoTIFF, ESRI ASCII grid) or a file "
+                                "of surveyed ground points"))
+    # a raster's place needs both; ground points are gridded at --truth-cell-size alone
+    truth_points = truth_path.suffix.lower() in CLOUD_EXTENSIONS
+    no_cell = args.truth_origin is not None and args.truth_cell_size is None
+    no_origin = args.truth_cell_size is not None and args.truth_origin is None
+    if no_cell or (no_origin and not truth_points):
+        problems.append(Problem("--truth-cell-size" if no_cell else "--truth-origin", "missing",
                                 "give --truth-origin X Y and --truth-cell-size M together"))
     if args.truth_cell_size is not None and not args.truth_cell_size > 0:
         problems.append(Problem("--truth-cell-size", f"must be > 0 m, got {args.truth_cell_size}"))

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError, did_you_mean
+from ..io import CLOUD_EXTENSIONS, read_cloud
 from .metrics import height_rmse, slope_deg_from_gradient, slope_error_deg
 
 Fitter = Callable[[np.ndarray], Any]
@@ -503,7 +504,9 @@ def read_raster(path: str | os.PathLike, *, origin: Sequence[float] | None = Non
     """A single-band elevation raster with its georeferencing.
 
     An ESRI ASCII grid (``.asc``, ``.grd``: the header places it) is read by
-    :func:`read_ascii_grid`. Other pixel values are read by :func:`read_dem` (OpenCV). ``origin`` (x, y of the upper-left
+    :func:`read_ascii_grid`; surveyed ground points (a point cloud file: LAS/LAZ, PLY, PCD,
+    XYZ, ...) are gridded by :func:`read_ground_points` (``cell_size`` default 1 m). Other
+    pixel values are read by :func:`read_dem` (OpenCV). ``origin`` (x, y of the upper-left
     corner of the upper-left cell) and ``cell_size`` (m) place it; when not given they come
     from the GeoTIFF tags ModelPixelScale (33550) and ModelTiepoint (33922) (or an unrotated
     ModelTransformation, 34264), read with ``tifffile`` (the ``dem`` extra:
@@ -513,6 +516,9 @@ def read_raster(path: str | os.PathLike, *, origin: Sequence[float] | None = Non
     conversion is done).
     """
     path = Path(path)
+    if path.suffix.lower() in CLOUD_EXTENSIONS:  # surveyed ground points
+        return read_ground_points(path, cell_size=1.0 if cell_size is None else cell_size,
+                                  origin=origin)
     if (origin is None) != (cell_size is None):
         raise InputError(f"{path}: origin and cell_size go together; give both or neither "
                          "(neither: the GeoTIFF tags are read)")
@@ -610,6 +616,59 @@ def read_ascii_grid(path: str | os.PathLike) -> Raster:
     x0 = header["xllcorner"] if "xllcorner" in header else header["xllcenter"] - cell / 2
     y_low = header["yllcorner"] if "yllcorner" in header else header["yllcenter"] - cell / 2
     return Raster(heights, (x0, y_low + nrows * cell), cell, name=path.name)
+
+
+def raster_from_points(positions: np.ndarray, cell_size: float, *,
+                       origin: Sequence[float] | None = None, name: str = "points") -> Raster:
+    """Surveyed ground points gridded into a truth raster: per cell the mean height of the
+    points in it, NaN where none fell. ``origin`` (the upper-left corner) aligns the grid;
+    by default its corners are multiples of ``cell_size``."""
+    p = np.asarray(positions, dtype=np.float64)
+    p = p[np.isfinite(p[:, :3]).all(axis=1)] if p.ndim == 2 and p.shape[1] >= 3 else p
+    if p.ndim != 2 or p.shape[1] < 3 or len(p) < 3:
+        raise InputError(f"{name}: needs at least 3 finite ground points (x, y, z) to make a "
+                         f"truth raster; got {len(p) if p.ndim == 2 else 0}")
+    if not (math.isfinite(cell_size) and cell_size > 0):
+        raise InputError(f"{name}: the truth cell size must be a positive number of metres, "
+                         f"got {cell_size}")
+    if origin is None:
+        x0 = math.floor(p[:, 0].min() / cell_size) * cell_size
+        y0 = math.ceil(p[:, 1].max() / cell_size) * cell_size
+        if y0 == p[:, 1].max():
+            y0 += cell_size  # the northernmost point inside the top row
+    else:
+        x0, y0 = (float(v) for v in origin)
+    col = np.floor((p[:, 0] - x0) / cell_size).astype(np.int64)
+    row = np.floor((y0 - p[:, 1]) / cell_size).astype(np.int64)
+    inside = (col >= 0) & (row >= 0)
+    if not inside.any():
+        raise InputError(f"{name}: no ground point lies right of and below the origin "
+                         f"{(x0, y0)}")
+    col, row, z = col[inside], row[inside], p[inside, 2]
+    shape = (max(int(row.max()) + 1, 3), max(int(col.max()) + 1, 3))
+    flat = row * shape[1] + col
+    total = np.bincount(flat, weights=z, minlength=shape[0] * shape[1])
+    count = np.bincount(flat, minlength=shape[0] * shape[1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        heights = np.where(count > 0, total / count, np.nan).reshape(shape)
+    return Raster(heights, (x0, y0), cell_size, name=name)
+
+
+def read_ground_points(path: str | os.PathLike, *, cell_size: float = 1.0,
+                       origin: Sequence[float] | None = None) -> Raster:
+    """A truth raster from a file of surveyed ground points (any cloud
+    :func:`o3d_terrain.io.read_cloud` reads; LAS/LAZ in feet become metres): a LAS/LAZ file
+    with ground-classified points (ASPRS class 2) gives those alone, any other file all its
+    points. Gridded by :func:`raster_from_points`."""
+    path = Path(path)
+    cloud = read_cloud(path)
+    positions = cloud.point.positions.numpy().astype(np.float64)
+    name = path.name
+    if "classification" in cloud.point:
+        classes = cloud.point["classification"].numpy().reshape(-1)
+        if np.any(classes == 2):
+            positions, name = positions[classes == 2], f"{path.name} (class 2)"
+    return raster_from_points(positions, cell_size, origin=origin, name=name)
 
 
 def _geotiff_tags(path: Path) -> tuple[dict[int, Any], str]:
