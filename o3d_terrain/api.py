@@ -172,7 +172,9 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
     (at least 1 m), at most 32 per axis (48 on a top-down scan, no points near
     ``sensor_origin``; one every 6 m on tiles wider than that allows), the refit (``refine``)
-    up to 40 per axis (:data:`o3d_terrain.refine.REFINE_MAX_CONTROL_POINTS`). degree: B-spline degree.
+    up to 40 per axis (:data:`o3d_terrain.refine.REFINE_MAX_CONTROL_POINTS`; 64 on a
+    vehicle's scan of steep relief, :func:`o3d_terrain.refine.steep_share`). degree: B-spline
+    degree.
     method: "robust" or "paper".
     smoothing: thin-plate penalty (relative) that keeps data-free areas bounded.
     terrain_prior: do not reject compact cells connected to the ground under the

@@ -17,7 +17,9 @@ per axis, the refit solves once, so it takes the automatic layout up to
 :data:`REFINE_MAX_CONTROL_POINTS` (one control point every 2 cells, at least 1 m; never
 fewer than the robust fit's), its knots placed as the robust fit's were (adaptive ones from
 the terrain cells). A wide frame's surface then follows terrain detail the robust layout's
-spacing could not (measured in docs/algorithm.md, "A finer layout for the refit").
+spacing could not (measured in docs/algorithm.md, "A finer layout for the refit"). On a
+vehicle's scan of steep relief (:func:`steep_share`) the cap is
+:data:`STEEP_REFINE_MAX_CONTROL_POINTS` (docs/algorithm.md, "A finer refit on steep relief").
 
 The sample of a cell is eq. 1 with the in-cell slope removed (the height of the least-squares
 plane of its terrain points at the cell centre minus their spread about it), at least that
@@ -38,7 +40,8 @@ from .spline import GridBasis, TerrainSurface, clamped_knots
 from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
-__all__ = ["refine_surface", "refit_layout", "REFINE_MIN_CELLS", "REFINE_MAX_CONTROL_POINTS"]
+__all__ = ["refine_surface", "refit_layout", "steep_share", "REFINE_MIN_CELLS",
+           "REFINE_MAX_CONTROL_POINTS", "STEEP_REFINE_MAX_CONTROL_POINTS"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points:
 #: fewer and the robust surface is kept (the penalty alone would shape the refit)
@@ -47,11 +50,21 @@ REFINE_MIN_CELLS = 1.0
 #: 4.3 ms at 40 x 40 on a KITTI frame against 2.2 ms at 32 x 32 (docs/algorithm.md, "A finer
 #: layout for the refit", with 48 and 64 measured)
 REFINE_MAX_CONTROL_POINTS = 40
+#: most control points per axis of the refit's automatic layout on relief: when at least
+#: STEEP_REFIT_SHARE of the cells with terrain points lie where the robust surface's normal
+#: turns more than STEEP_REFIT_SLOPE_DEG from its median normal (slopes that change, not a
+#: tilt; docs/algorithm.md, "A finer refit on steep relief")
+STEEP_REFINE_MAX_CONTROL_POINTS = 64
+STEEP_REFIT_SLOPE_DEG = 15.0
+STEEP_REFIT_SHARE = 0.2
+#: the steep share is measured on at most this many of those cells (evenly picked)
+STEEP_REFIT_SAMPLE = 2000
 
 
 def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size: float,
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
-                   cell_plane: bool = True, max_control_points: int | None = None
+                   cell_plane: bool = True, max_control_points: int | None = None,
+                   steep_max_control_points: int | None = None
                    ) -> tuple[TerrainSurface, int]:
     """``(surface, cells)``: the surface's layout refitted to the points ``positions`` that
     the automatic labelling against ``surface`` calls terrain (module docstring), and the
@@ -64,7 +77,9 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     cloud's coordinates, for the labelling (its range term and its level); cell_plane: False =
     eq. 1 about the cells' means, not their planes (as the fit's option); max_control_points:
     None = the surface's layout and knots (a layout the caller chose), a number = the
-    automatic layout up to that many per axis (:func:`refit_layout`)."""
+    automatic layout up to that many per axis (:func:`refit_layout`);
+    steep_max_control_points: with max_control_points, the cap instead of it on steep relief
+    (:func:`steep_share` of the terrain cells at least :data:`STEEP_REFIT_SHARE`)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     # without the feet of objects: they lie within the threshold, and the cell samples (eq. 1
     # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
@@ -96,6 +111,9 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     local = (region[0] - x0, region[1] - x0, region[2] - y0, region[3] - y0)
     layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
     if max_control_points is not None:
+        if steep_max_control_points is not None and \
+                steep_share(surface, grid) >= STEEP_REFIT_SHARE:
+            max_control_points = max(max_control_points, steep_max_control_points)
         layout, knots = refit_layout(surface, grid, max_control_points, local)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
                       knots)
@@ -104,6 +122,28 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     refined = TerrainSurface(surface.degree, basis.knots_x, basis.knots_y, q, np.ones_like(q),
                              surface.origin, surface.cell_size)
     return refined, int(cells.size)
+
+
+def steep_share(surface: TerrainSurface, grid: HeightGrid,
+                slope_deg: float = STEEP_REFIT_SLOPE_DEG) -> float:
+    """The share of ``grid``'s measured cells (at most :data:`STEEP_REFIT_SAMPLE` of them,
+    evenly picked) at whose centre the normal of ``surface`` turns more than ``slope_deg``
+    from the median of those normals: ground whose slope changes. A uniform tilt (a sensor
+    pitched over a level street) scores 0 however steep it makes the ground in the cloud's
+    frame; 0 with no measured cell."""
+    ix, iy = np.nonzero(grid.state == MEASURED)
+    if ix.size == 0:
+        return 0.0
+    pick = slice(None, None, max(1, ix.size // STEEP_REFIT_SAMPLE))
+    gx, gy = surface.gradient(grid.x_centers[ix[pick]], grid.y_centers[iy[pick]])
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    if not ok.any():
+        return 0.0
+    normals = np.column_stack([-gx[ok], -gy[ok], np.ones(int(ok.sum()))])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    mean = np.median(normals, axis=0)
+    mean /= np.linalg.norm(mean)
+    return float(np.mean(normals @ mean < np.cos(np.radians(slope_deg))))
 
 
 def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,

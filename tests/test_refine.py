@@ -8,7 +8,8 @@ import pytest
 import o3d_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.grid import quantize_points
-from o3d_terrain.refine import REFINE_MAX_CONTROL_POINTS, refine_surface
+from o3d_terrain.refine import (REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS,
+                                refine_surface, steep_share)
 from o3d_terrain.stages import RationalBSplineTerrain
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_stereo
 from o3d_terrain.terrain import AUTO_MAX_CONTROL_POINTS, default_control_points
@@ -139,3 +140,36 @@ def test_an_automatic_layout_grows_for_the_refit_where_the_robust_one_is_capped(
     # a layout the caller chose is the refit's too
     chosen = RationalBSplineTerrain(control_points=(30, 30)).fit(grid, p)
     assert chosen.surface.control_points.shape == (30, 30)
+
+
+def _scan_of(terrain, rng, n=60_000, radius=45.0):
+    """A ground sensor's scan (denser near it) of ``terrain`` over a 90 m disc, 2 cm noise."""
+    r = radius * np.sqrt(rng.uniform(0.002, 1.0, n))
+    r = r[rng.uniform(0, 1, n) < np.minimum(1.0, 5.0 / r)]
+    a = rng.uniform(0, 2 * np.pi, r.size)
+    x, y = r * np.cos(a), r * np.sin(a)
+    return np.column_stack([x, y, terrain(x, y) + rng.normal(0, 0.02, r.size)])
+
+
+def test_steep_relief_gets_a_finer_refit_and_a_tilt_does_not(rng):
+    def relief(x, y):  # slopes changing by 20-35 degrees over 15-25 m
+        return 4.0 * np.sin(x / 4.0) * np.cos(y / 5.0) - 1.8
+
+    def tilted(x, y):  # a level street seen by a sensor pitched 25 degrees
+        return np.tan(np.radians(25.0)) * x - 1.8
+
+    stage = RationalBSplineTerrain()
+    shapes = {}
+    for name, terrain in (("relief", relief), ("tilted", tilted)):
+        p = _scan_of(terrain, rng)
+        grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+        fit = stage.fit(grid, p)
+        shapes[name] = fit.surface.control_points.shape
+        share = steep_share(fit.robust_surface, grid)
+        assert (share > 0.5) if name == "relief" else (share < 0.02), (name, share)
+    assert shapes["relief"] == (STEEP_REFINE_MAX_CONTROL_POINTS,) * 2
+    assert shapes["tilted"] == (REFINE_MAX_CONTROL_POINTS,) * 2
+    # a top-down scan keeps its own layout (no points near the sensor origin)
+    p = _scan_of(relief, rng) + [5000.0, 3000.0, 0.0]
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+    assert max(stage.fit(grid, p).surface.control_points.shape) < STEEP_REFINE_MAX_CONTROL_POINTS

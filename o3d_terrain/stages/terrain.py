@@ -10,7 +10,7 @@ from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
-from ..refine import REFINE_MAX_CONTROL_POINTS, refine_surface
+from ..refine import REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS, refine_surface
 from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_GAP, FOOT_HEIGHT, FOOT_LINES,
                        TerrainLabel, segment_points, sensor_in_cloud)
 from ..terrain import (
@@ -55,7 +55,8 @@ class RationalBSplineTerrain(Stage):
              "2 cells (at least 1 m), at most 32 per axis (48 on a top-down scan: an airborne "
              "tile with no points near sensor_origin), or one every 6 m (at most 96) where "
              "that would leave them farther apart; the refit (refine) then takes up to 40 "
-             "per axis; a layout given here is the refit's too",
+             "per axis (64 on a vehicle's scan of steep relief); a layout given here is the "
+             "refit's too",
     )
     degree: int = option(3, rule=Range(1, 5), help="polynomial degree of the B-spline basis")
     method: str = option("robust", choices=METHODS,
@@ -175,14 +176,16 @@ class RationalBSplineTerrain(Stage):
         if not (self.refine and self.method == "robust" and positions is not None
                 and range_noise is None):
             return dataclasses.replace(fit, surface=surface)
-        # an automatic layout may grow for the refit's one solve (o3d_terrain.refine); a
-        # layout the user chose stays
+        # an automatic layout may grow for the refit's one solve (o3d_terrain.refine), more
+        # on a vehicle's scan of steep relief; a layout the user chose stays
         refined, _ = refine_surface(surface, positions, cell_size=grid.cell_size,
                                     smoothing=self.smoothing, noise_floor=self.noise_floor,
                                     sensor_origin=self.sensor_origin,
                                     cell_plane=self.cell_plane,
                                     max_control_points=REFINE_MAX_CONTROL_POINTS
-                                    if self.control_points is None else None)
+                                    if self.control_points is None else None,
+                                    steep_max_control_points=None if top_down
+                                    else STEEP_REFINE_MAX_CONTROL_POINTS)
         return dataclasses.replace(fit, surface=refined, robust_surface=surface)
 
 
