@@ -112,7 +112,7 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
     if max_control_points is not None:
         if steep_max_control_points is not None and \
-                steep_share(surface, grid) >= STEEP_REFIT_SHARE:
+                steep_share(surface, grid, cells=cells) >= STEEP_REFIT_SHARE:
             max_control_points = max(max_control_points, steep_max_control_points)
         layout, knots = refit_layout(surface, grid, max_control_points, local)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
@@ -125,17 +125,20 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
 
 
 def steep_share(surface: TerrainSurface, grid: HeightGrid,
-                slope_deg: float = STEEP_REFIT_SLOPE_DEG) -> float:
+                slope_deg: float = STEEP_REFIT_SLOPE_DEG, cells: np.ndarray | None = None
+                ) -> float:
     """The share of ``grid``'s measured cells (at most :data:`STEEP_REFIT_SAMPLE` of them,
     evenly picked) at whose centre the normal of ``surface`` turns more than ``slope_deg``
     from the median of those normals: ground whose slope changes. A uniform tilt (a sensor
     pitched over a level street) scores 0 however steep it makes the ground in the cloud's
-    frame; 0 with no measured cell."""
-    ix, iy = np.nonzero(grid.state == MEASURED)
-    if ix.size == 0:
+    frame; 0 with no measured cell. ``cells``: the measured cells' flat indices when the
+    caller has them."""
+    if cells is None:
+        cells = np.flatnonzero((grid.state == MEASURED).ravel())
+    if cells.size == 0:
         return 0.0
-    pick = slice(None, None, max(1, ix.size // STEEP_REFIT_SAMPLE))
-    gx, gy = surface.gradient(grid.x_centers[ix[pick]], grid.y_centers[iy[pick]])
+    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_REFIT_SAMPLE)], grid.state.shape[1])
+    gx, gy = surface.gradient(grid.x_centers[ix], grid.y_centers[iy])
     ok = np.isfinite(gx) & np.isfinite(gy)
     if not ok.any():
         return 0.0
