@@ -144,9 +144,9 @@ def steep_share(surface: TerrainSurface, grid: HeightGrid,
         return 0.0
     normals = np.column_stack([-gx[ok], -gy[ok], np.ones(int(ok.sum()))])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    mean = np.median(normals, axis=0)
-    mean /= np.linalg.norm(mean)
-    return float(np.mean(normals @ mean < np.cos(np.radians(slope_deg))))
+    median = np.median(normals, axis=0)
+    median /= np.linalg.norm(median)
+    return float(np.mean(normals @ median < np.cos(np.radians(slope_deg))))
 
 
 def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,
