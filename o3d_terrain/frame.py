@@ -185,3 +185,14 @@ def as_frame(data: Any) -> Frame:
 def finite_mask(positions: np.ndarray) -> np.ndarray:
     """True where all three coordinates are finite."""
     return np.isfinite(positions).all(axis=1)
+
+
+def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """Apply a 4 × 4 rigid transform to (N, 3) points (column by column: for tall arrays this
+    is several times faster than a BLAS matrix product with a 3 × 3 matrix)."""
+    r, t = transform[:3, :3], transform[:3, 3]
+    out = np.empty_like(points, dtype=np.float64)
+    for row in range(3):
+        out[:, row] = (points[:, 0] * r[row, 0] + points[:, 1] * r[row, 1]
+                       + points[:, 2] * r[row, 2] + t[row])
+    return out

@@ -25,8 +25,9 @@ import numpy as np
 import open3d as o3d
 
 from .errors import InputError
+from .frame import transform_points
 
-__all__ = ["level_cloud", "levelling_transform", "tilt_deg"]
+__all__ = ["level_cloud", "level_arrays", "levelling_transform", "tilt_deg"]
 
 
 def _vector(values: Any, name: str) -> np.ndarray:
@@ -65,6 +66,18 @@ def levelling_transform(up: Sequence[float], sensor_origin: Sequence[float] = (0
     return transform
 
 
+def level_arrays(transform: np.ndarray, positions: np.ndarray,
+                 normals: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """``{"positions": ..., "normals": ...}``: (N, 3) positions moved by the 4 × 4
+    ``transform`` and, when given, normals turned by its rotation (float64)."""
+    moved = {"positions": transform_points(np.asarray(positions, dtype=np.float64), transform)}
+    if normals is not None:
+        rotation = transform.copy()
+        rotation[:3, 3] = 0.0
+        moved["normals"] = transform_points(np.asarray(normals, dtype=np.float64), rotation)
+    return moved
+
+
 def tilt_deg(up: Sequence[float]) -> float:
     """The angle between ``up`` and +z (degrees)."""
     u = _vector(up, "up")
@@ -89,13 +102,12 @@ def level_cloud(cloud: Any, up: Sequence[float], *,
     array([[ 9.397,  0.   , -3.42 ]])
     """
     transform = levelling_transform(up, sensor_origin)
-    rotation, shift = transform[:3, :3], transform[:3, 3]
     if isinstance(cloud, np.ndarray):
         if cloud.ndim != 2 or cloud.shape[1] < 3 or not np.issubdtype(cloud.dtype, np.number):
             raise InputError(f"a numpy cloud must be (N, 3) or (N, k >= 3) numbers; got shape "
                              f"{cloud.shape}, dtype {cloud.dtype}")
         out = np.array(cloud, dtype=np.result_type(cloud.dtype, np.float64), copy=True)
-        out[:, :3] = cloud[:, :3] @ rotation.T + shift
+        out[:, :3] = transform_points(cloud[:, :3], transform)
         return out, transform
     if isinstance(cloud, o3d.geometry.PointCloud):
         out = copy.deepcopy(cloud)
@@ -103,14 +115,10 @@ def level_cloud(cloud: Any, up: Sequence[float], *,
         return out, transform
     if isinstance(cloud, o3d.t.geometry.PointCloud):
         out = cloud.clone()
-        positions = out.point.positions
-        dtype = positions.dtype
-        out.point.positions = o3d.core.Tensor(
-            (positions.numpy().astype(np.float64) @ rotation.T + shift)).to(dtype)
-        if "normals" in out.point:
-            normals = out.point.normals
-            out.point.normals = o3d.core.Tensor(
-                normals.numpy().astype(np.float64) @ rotation.T).to(normals.dtype)
+        for name, moved in level_arrays(transform, out.point.positions.numpy(),
+                                        out.point.normals.numpy() if "normals" in out.point
+                                        else None).items():
+            out.point[name] = o3d.core.Tensor(moved).to(out.point[name].dtype)
         return out, transform
     raise InputError(f"level_cloud takes a numpy array or an Open3D point cloud; got "
                      f"{type(cloud).__name__}")

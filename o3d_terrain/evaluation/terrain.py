@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError, did_you_mean
+from ..frame import transform_points
 from ..io import CLOUD_EXTENSIONS, read_cloud
 from .metrics import height_rmse, slope_deg_from_gradient, slope_error_deg
 
@@ -853,7 +854,6 @@ def _truth_positions(cloud: Any, pose: Any) -> tuple[np.ndarray, np.ndarray | No
     """Finite (N, 3) float64 positions of a cloud or file, moved by ``pose``; the checked
     pose matrix (None without one)."""
     from ..api import cloud_positions
-    from ..io import read_cloud
 
     if isinstance(cloud, (str, os.PathLike)):
         cloud = read_cloud(cloud)
@@ -864,7 +864,7 @@ def _truth_positions(cloud: Any, pose: Any) -> tuple[np.ndarray, np.ndarray | No
     if pose is None:
         return positions, None
     m = read_pose(pose) if isinstance(pose, (str, os.PathLike)) else check_pose(pose)
-    return positions @ m[:3, :3].T + m[:3, 3], m
+    return transform_points(positions, m), m
 
 
 def evaluate_terrain_against_raster(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..frame import Frame
-from ..level import levelling_transform, tilt_deg
+from ..level import level_arrays, levelling_transform, tilt_deg
 from ..options import option
 from .base import Stage, stage
 
@@ -43,9 +43,7 @@ class LevelCloud(Stage):
 
     def run(self, frame: Frame) -> Frame:
         transform = levelling_transform(self.up, self.sensor_origin)
-        rotation, shift = transform[:3, :3], transform[:3, 3]
-        changed = {"positions": np.asarray(frame.positions, dtype=np.float64) @ rotation.T + shift}
-        if frame.has_attribute("normals"):
-            changed["normals"] = np.asarray(frame.attribute("normals"), dtype=np.float64) @ rotation.T
+        changed = level_arrays(transform, frame.positions, frame.attribute("normals")
+                               if frame.has_attribute("normals") else None)
         return (frame.with_attributes(**changed).with_products(levelled_from_cloud=transform)
                 .with_note(f"{self.type_name}: turned {tilt_deg(self.up):.1f} deg to level"))
