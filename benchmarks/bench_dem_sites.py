@@ -46,6 +46,7 @@ from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
 from o3d_terrain.evaluation.terrain import read_raster  # noqa: E402
 from o3d_terrain.synthetic import (GridRelief, Obstacle, Scene, default_obstacles,  # noqa: E402
                                    sample_airborne, sample_lidar)
+from o3d_terrain.synthetic.scene import forest_obstacles  # noqa: E402
 
 HALF = 50.0  # half the site's width (m)
 OBSTACLE_HEIGHT = 0.3  # obstacle points above this count in the obstacle recall (m)
@@ -65,21 +66,8 @@ def site_scene(heights: np.ndarray, row: int, col: int, seed: int, scale: float 
     relief = GridRelief(scale * (window - heights[row, col]), 1.0, x0=-float(pad),
                         y0=-float(pad))
     rng = np.random.default_rng(seed)
-    obstacles = []
-    while len(obstacles) < 38:
-        x, y = (float(v) for v in rng.uniform(-HALF + 3, HALF - 3, 2))
-        if math.hypot(x, y) < 5.0:
-            continue
-        if len(obstacles) < 30:
-            width = float(rng.uniform(3.0, 6.0))
-            obstacles.append(Obstacle("tree", (x, y), (width, width * float(rng.uniform(0.8, 1.2))),
-                                      float(rng.uniform(8.0, 16.0)),
-                                      yaw_deg=float(rng.uniform(0, 180))))
-        else:
-            width = float(rng.uniform(1.0, 2.5))
-            obstacles.append(Obstacle("rock", (x, y), (width, width * float(rng.uniform(0.6, 1.0))),
-                                      float(rng.uniform(0.5, 1.4)),
-                                      yaw_deg=float(rng.uniform(0, 180))))
+    inside = (-HALF + 3, HALF - 3)
+    obstacles = list(forest_obstacles(rng, inside, inside, count=38, clear_radius=5.0))
     # the default set (pole, pedestrian, car, rock, truck) turned about the centre at random
     turn = float(rng.uniform(0, 2 * math.pi))
     c, s = math.cos(turn), math.sin(turn)

@@ -457,12 +457,22 @@ def _forest(rng):
     features = (Plane(slope_x=0.05, slope_y=math.tan(math.radians(25.0))),
                 Ridge(0.0, -5.0, 0.0, -1.0, 1.2), Hill(22.0, 7.0, 2.5, 5.0, 4.0),
                 Roughness.random(rng, amplitude=0.05))
+    return features, forest_obstacles(rng, (-3.0, 34.0), (-14.0, 14.0), count=40,
+                                      clear_radius=4.0)
+
+
+def forest_obstacles(rng: np.random.Generator, x_range, y_range, *, count: int = 40,
+                     trees: int = 30, clear_radius: float = 4.0) -> tuple[Obstacle, ...]:
+    """``count`` obstacles at random (x, y) within the ranges, none within ``clear_radius``
+    of the origin (the sensor): first ``trees`` trees (crowns 3-6 m wide, 8-16 m tall), then
+    rocks and bushes (low ellipsoids 1-2.5 m wide, 0.5-1.4 m high), turned at random. The
+    ``forest`` scene's vegetation, and that of other scenes built on the same pattern."""
     obstacles = []
-    while len(obstacles) < 40:
-        x, y = float(rng.uniform(-3.0, 34.0)), float(rng.uniform(-14.0, 14.0))
-        if math.hypot(x, y) < 4.0:
+    while len(obstacles) < count:
+        x, y = float(rng.uniform(*x_range)), float(rng.uniform(*y_range))
+        if math.hypot(x, y) < clear_radius:
             continue
-        if len(obstacles) < 30:
+        if len(obstacles) < trees:
             width = float(rng.uniform(3.0, 6.0))
             obstacles.append(Obstacle("tree", (x, y), (width, width * float(rng.uniform(0.8, 1.2))),
                                       float(rng.uniform(8.0, 16.0)),
@@ -472,7 +482,7 @@ def _forest(rng):
             obstacles.append(Obstacle("rock", (x, y), (width, width * float(rng.uniform(0.6, 1.0))),
                                       float(rng.uniform(0.5, 1.4)),
                                       yaw_deg=float(rng.uniform(0.0, 180.0))))
-    return features, tuple(obstacles)
+    return tuple(obstacles)
 
 
 def _crossing(rng):
