@@ -64,8 +64,9 @@ def sensor_pose(scene: Scene, *, sensor_xy=None, sensor_height: float, yaw_deg: 
     ground = np.array([x, y, float(scene.height(x, y))])
     if on_terrain:
         mount = rotation_matrix(roll_deg=tilt_deg[0], pitch_deg=tilt_deg[1])
-        up = np.asarray(scene.normal(x, y), dtype=np.float64).reshape(3)
         gx, gy = (float(g) for g in scene.gradient(x, y))
+        up = np.array([-gx, -gy, 1.0])
+        up /= np.linalg.norm(up)  # the terrain normal, as scene.normal gives it
         cx, cy = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
         forward = np.array([cx, cy, gx * cx + gy * cy])  # along the slope, heading yaw_deg
         forward /= np.linalg.norm(forward)
