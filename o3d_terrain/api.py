@@ -25,7 +25,6 @@ from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
 from .stages.terrain import RationalBSplineTerrain, Segmenter
-from .terrain import MAX_SLOPE_DEG
 
 __all__ = ["fit_terrain", "segment_terrain", "cloud_positions"]
 
@@ -141,7 +140,7 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
     extent = _checked_region(positions, quantize.region)
     # the ground-layer statistics of the fit are gathered in the grid's pass over the points
     layer = default_layer(quantize.cell_size, noise_floor=terrain.noise_floor,
-                          max_slope_deg=terrain.max_slope_deg) \
+                          max_slope_deg=terrain.slope_limit) \
         if terrain.ground_layer and terrain.method == "robust" else 0.0
     grid = quantize._guard(lambda: quantize.grid(positions, region=extent, layer=layer,
                                                  plane=terrain.cell_plane,
@@ -163,7 +162,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 method: str = "robust", smoothing: float = 0.05,
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
                 sensor_origin: Sequence[float] = (0.0, 0.0, 0.0),
-                max_slope_deg: float = MAX_SLOPE_DEG,
+                max_slope_deg: float | None = None,
                 cell_plane: bool = True, refine: bool = True,
                 knots: str = "auto") -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
@@ -180,10 +179,13 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     terrain_prior: do not reject compact cells connected to the ground under the
     ``max_slope_deg`` slope limit as obstacles (steep berms and ditch walls;
     docs/algorithm.md); False = plain robust weights.
-    max_slope_deg: the prior's slope limit (deg, default 45): faces steeper than this are
-    walls, not terrain. Raise it (e.g. 60-75) for the bench faces of pits and cuttings; on
-    street scenes it connects the walls of cars and buildings to the ground
-    (docs/algorithm.md, "Steep faces").
+    max_slope_deg: the prior's slope limit (deg): faces steeper than this are walls, not
+    terrain. None = 45 (:data:`o3d_terrain.terrain.MAX_SLOPE_DEG`), or 60 on a vehicle's scan
+    of strong relief (slopes that change, not a tilt; :func:`o3d_terrain.refine.steep_share`
+    at least :data:`o3d_terrain.terrain.STEEP_LIMIT_SHARE`), where the fit is then made again
+    (docs/algorithm.md, "A steeper slope limit on strong relief"). Give it (e.g. 60-75) for
+    the bench faces of pits and cuttings; on street scenes a higher limit connects the walls
+    of cars and buildings to the ground (docs/algorithm.md, "Steep slopes and faces").
     range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`
     (e.g. ``RangeNoise.from_stereo(focal_px=..., baseline=..., disparity_noise_px=...)``) or
     its coefficient in 1/m with ``sensor_origin`` (cloud coordinates); None = none (lidar).
@@ -224,7 +226,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     smoothing: float = 0.05, terrain_prior: bool = True,
                     range_noise: RangeNoise | float | None = None,
                     misfit_threshold: bool = True, along_normal: bool = True,
-                    foot_height: float = FOOT_HEIGHT, max_slope_deg: float = MAX_SLOPE_DEG,
+                    foot_height: float = FOOT_HEIGHT, max_slope_deg: float | None = None,
                     cell_plane: bool = True, refine: bool = True,
                     knots: str = "auto",
                     foot_lines: float = FOOT_LINES,

@@ -18,8 +18,9 @@ per axis, the refit solves once, so it takes the automatic layout up to
 fewer than the robust fit's), its knots placed as the robust fit's were (adaptive ones from
 the terrain cells). A wide frame's surface then follows terrain detail the robust layout's
 spacing could not (measured in docs/algorithm.md, "A finer layout for the refit"). On a
-vehicle's scan of steep relief (:func:`steep_share`) the cap is
-:data:`STEEP_REFINE_MAX_CONTROL_POINTS` (docs/algorithm.md, "A finer refit on steep relief").
+vehicle's scan of steep relief (:func:`steep_share` at least :data:`STEEP_SHARE`) the caller
+gives the cap :data:`STEEP_REFINE_MAX_CONTROL_POINTS` (docs/algorithm.md, "A finer refit on
+steep relief").
 
 The sample of a cell is eq. 1 with the in-cell slope removed (the height of the least-squares
 plane of its terrain points at the cell centre minus their spread about it), at least that
@@ -41,7 +42,8 @@ from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
 __all__ = ["refine_surface", "refit_layout", "steep_share", "REFINE_MIN_CELLS",
-           "REFINE_MAX_CONTROL_POINTS", "STEEP_REFINE_MAX_CONTROL_POINTS"]
+           "REFINE_MAX_CONTROL_POINTS", "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE",
+           "STEEP_SLOPE_DEG"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points:
 #: fewer and the robust surface is kept (the penalty alone would shape the refit)
@@ -50,21 +52,22 @@ REFINE_MIN_CELLS = 1.0
 #: 4.3 ms at 40 x 40 on a KITTI frame against 2.2 ms at 32 x 32 (docs/algorithm.md, "A finer
 #: layout for the refit", with 48 and 64 measured)
 REFINE_MAX_CONTROL_POINTS = 40
-#: most control points per axis of the refit's automatic layout on relief: when at least
-#: STEEP_REFIT_SHARE of the cells with terrain points lie where the robust surface's normal
-#: turns more than STEEP_REFIT_SLOPE_DEG from its median normal (slopes that change, not a
-#: tilt; docs/algorithm.md, "A finer refit on steep relief")
+#: steep relief: at least STEEP_SHARE of a scan's measured cells lie where the robust
+#: surface's normal turns more than STEEP_SLOPE_DEG from its median normal (slopes that change,
+#: not a tilt; :func:`steep_share`); on a vehicle's scan of it the refit's automatic layout
+#: takes up to STEEP_REFINE_MAX_CONTROL_POINTS per axis (docs/algorithm.md, "A finer refit on
+#: steep relief") and the prior's automatic slope limit is
+#: :data:`o3d_terrain.terrain.STEEP_MAX_SLOPE_DEG` (the stage RationalBSplineTerrain decides)
 STEEP_REFINE_MAX_CONTROL_POINTS = 64
-STEEP_REFIT_SLOPE_DEG = 15.0
-STEEP_REFIT_SHARE = 0.2
+STEEP_SLOPE_DEG = 15.0
+STEEP_SHARE = 0.2
 #: the steep share is measured on at most this many of those cells (evenly picked)
-STEEP_REFIT_SAMPLE = 2000
+STEEP_SAMPLE = 2000
 
 
 def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size: float,
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
-                   cell_plane: bool = True, max_control_points: int | None = None,
-                   steep_max_control_points: int | None = None
+                   cell_plane: bool = True, max_control_points: int | None = None
                    ) -> tuple[TerrainSurface, int]:
     """``(surface, cells)``: the surface's layout refitted to the points ``positions`` that
     the automatic labelling against ``surface`` calls terrain (module docstring), and the
@@ -77,9 +80,7 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     cloud's coordinates, for the labelling (its range term and its level); cell_plane: False =
     eq. 1 about the cells' means, not their planes (as the fit's option); max_control_points:
     None = the surface's layout and knots (a layout the caller chose), a number = the
-    automatic layout up to that many per axis (:func:`refit_layout`);
-    steep_max_control_points: with max_control_points, the cap instead of it on steep relief
-    (:func:`steep_share` of the terrain cells at least :data:`STEEP_REFIT_SHARE`)."""
+    automatic layout up to that many per axis (:func:`refit_layout`)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     # without the feet of objects: they lie within the threshold, and the cell samples (eq. 1
     # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
@@ -111,9 +112,6 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     local = (region[0] - x0, region[1] - x0, region[2] - y0, region[3] - y0)
     layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
     if max_control_points is not None:
-        if steep_max_control_points is not None and \
-                steep_share(surface, grid, cells=cells) >= STEEP_REFIT_SHARE:
-            max_control_points = max(max_control_points, steep_max_control_points)
         layout, knots = refit_layout(surface, grid, max_control_points, local)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
                       knots)
@@ -125,9 +123,9 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
 
 
 def steep_share(surface: TerrainSurface, grid: HeightGrid,
-                slope_deg: float = STEEP_REFIT_SLOPE_DEG, cells: np.ndarray | None = None
+                slope_deg: float = STEEP_SLOPE_DEG, cells: np.ndarray | None = None
                 ) -> float:
-    """The share of ``grid``'s measured cells (at most :data:`STEEP_REFIT_SAMPLE` of them,
+    """The share of ``grid``'s measured cells (at most :data:`STEEP_SAMPLE` of them,
     evenly picked) at whose centre the normal of ``surface`` turns more than ``slope_deg``
     from the median of those normals: ground whose slope changes. A uniform tilt (a sensor
     pitched over a level street) scores 0 however steep it makes the ground in the cloud's
@@ -137,7 +135,7 @@ def steep_share(surface: TerrainSurface, grid: HeightGrid,
         cells = np.flatnonzero((grid.state == MEASURED).ravel())
     if cells.size == 0:
         return 0.0
-    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_REFIT_SAMPLE)], grid.state.shape[1])
+    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_SAMPLE)], grid.state.shape[1])
     gx, gy = surface.gradient(grid.x_centers[ix], grid.y_centers[iy])
     ok = np.isfinite(gx) & np.isfinite(gy)
     if not ok.any():

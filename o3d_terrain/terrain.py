@@ -35,8 +35,8 @@ from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
            "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
-           "MAX_SLOPE_DEG", "NOISE_FLOOR", "TOP_DOWN_MAX_CONTROL_POINTS", "KNOT_PLACEMENTS",
-           "knot_densities"]
+           "MAX_SLOPE_DEG", "STEEP_MAX_SLOPE_DEG", "STEEP_LIMIT_SHARE", "NOISE_FLOOR", "TOP_DOWN_MAX_CONTROL_POINTS",
+           "KNOT_PLACEMENTS", "knot_densities"]
 
 METHODS = ("robust", "paper")
 
@@ -44,6 +44,13 @@ METHODS = ("robust", "paper")
 #: and not terrain; raising it lets bench faces of pits and cuttings be terrain but connects
 #: the walls of cars and buildings to the ground (docs/algorithm.md, "Steep faces")
 MAX_SLOPE_DEG = 45.0
+#: the slope limit the automatic choice takes on a vehicle's scan of strong relief: at least
+#: STEEP_LIMIT_SHARE of its measured cells where the robust surface's normal turns more than
+#: 15 degrees from its median normal (:func:`o3d_terrain.refine.steep_share`; the fit is then
+#: made again): a vehicle tilted by the slope it stands on sees the slopes ahead of it
+#: steeper than they are (docs/algorithm.md, "A steeper slope limit on strong relief")
+STEEP_MAX_SLOPE_DEG = 60.0
+STEEP_LIMIT_SHARE = 0.4
 
 #: smallest noise threshold of the robust weights (m); also the least height spread a cell's
 #: plane must give its points to replace eq. 1 (``cell_plane``)

@@ -1,7 +1,9 @@
 """Steep faces: the terrain prior's slope limit (``max_slope_deg``) through the drop-in
 functions. The bench faces of a pit, steeper than the default 45 degrees, are walls to the
 prior until the limit is raised (docs/algorithm.md, "Steep slopes and faces"; the thresholds
-along the surface normal are tested in tests/test_segment.py)."""
+along the surface normal are tested in tests/test_segment.py). The automatic limit rises to
+60 degrees on a vehicle's scan of strong relief (docs/algorithm.md, "A steeper slope limit
+on strong relief")."""
 
 from __future__ import annotations
 
@@ -13,7 +15,11 @@ import pytest
 
 from o3d_terrain.api import fit_terrain, segment_terrain
 from o3d_terrain.errors import InputError
+from o3d_terrain.grid import quantize_points
+from o3d_terrain.refine import steep_share
+from o3d_terrain.stages import RationalBSplineTerrain
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
+from o3d_terrain.terrain import MAX_SLOPE_DEG, STEEP_LIMIT_SHARE, STEEP_MAX_SLOPE_DEG
 
 
 @pytest.fixture(scope="module")
@@ -68,3 +74,57 @@ def test_a_slope_limit_out_of_range_is_rejected_with_its_name(benches, value):
         with pytest.raises(InputError, match="max_slope_deg"):
             call(p[:1000], max_slope_deg=value)
 
+
+
+def _pitched_scan(terrain, pitch_deg, rng, n=60_000, radius=45.0):
+    """A ground sensor's scan (denser near it, 2 cm noise) of ``terrain`` over a 90 m disc,
+    in the frame of a sensor pitched by ``pitch_deg`` (a vehicle tilted by the slope it
+    stands on: the ground ahead rises in the cloud by that much more)."""
+    r = radius * np.sqrt(rng.uniform(0.002, 1.0, n))
+    r = r[rng.uniform(0, 1, n) < np.minimum(1.0, 5.0 / r)]
+    a = rng.uniform(0, 2 * np.pi, r.size)
+    p = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros(r.size)])
+    p[:, 2] = terrain(p[:, 0], p[:, 1]) + rng.normal(0, 0.02, r.size)
+    t = math.radians(pitch_deg)
+    rotation = np.array([[math.cos(t), 0, math.sin(t)], [0, 1, 0], [-math.sin(t), 0, math.cos(t)]])
+    return p @ rotation.T
+
+
+def _relief(x, y):  # slopes changing by up to 45 degrees within 10-15 m, every point terrain
+    return 4.0 * np.sin(x / 4.0) * np.cos(y / 5.0) - 1.8
+
+
+def _plane(x, y):
+    return np.full_like(x, -1.8)
+
+
+def test_the_automatic_limit_rises_on_steep_relief_and_not_for_a_tilt(rng):
+    stage = RationalBSplineTerrain()
+    assert stage.max_slope_deg is None and stage.slope_limit == MAX_SLOPE_DEG
+    relief = _pitched_scan(_relief, 25.0, rng)
+    street = _pitched_scan(_plane, 25.0, rng)  # a level street under a sensor pitched 25 deg
+    for p, steep in ((relief, True), (street, False)):
+        grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+        fit = stage.fit(grid, p)
+        share = steep_share(fit.robust_surface, grid)
+        assert (share >= STEEP_LIMIT_SHARE) == steep, share
+        # the automatic limit labels as the fixed limit it chose does
+        chosen = STEEP_MAX_SLOPE_DEG if steep else MAX_SLOPE_DEG
+        _, auto = segment_terrain(p)
+        _, fixed = segment_terrain(p, max_slope_deg=chosen)
+        np.testing.assert_array_equal(auto, fixed)
+    # on the relief (every point terrain) it keeps ground that the 45-degree walls reject
+    _, at_45 = segment_terrain(relief, max_slope_deg=MAX_SLOPE_DEG)
+    _, auto = segment_terrain(relief)
+    assert len(auto) > len(at_45) + 0.015 * len(relief)
+
+
+def test_a_given_limit_is_kept_on_steep_relief(rng):
+    p = _pitched_scan(_relief, 25.0, rng)
+    stage = RationalBSplineTerrain(max_slope_deg=45.0)
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+    given = stage.fit(grid, p)
+    assert steep_share(given.robust_surface, grid) >= STEEP_LIMIT_SHARE
+    auto = RationalBSplineTerrain().fit(grid, p)
+    assert not np.allclose(given.robust_surface.control_points,
+                           auto.robust_surface.control_points)

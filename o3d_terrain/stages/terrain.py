@@ -10,7 +10,8 @@ from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
-from ..refine import REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS, refine_surface
+from ..refine import (REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS, STEEP_SHARE,
+                      refine_surface, steep_share)
 from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_GAP, FOOT_HEIGHT, FOOT_LINES,
                        TerrainLabel, segment_points, sensor_in_cloud)
 from ..terrain import (
@@ -18,6 +19,8 @@ from ..terrain import (
     MAX_SLOPE_DEG,
     METHODS,
     NOISE_FLOOR,
+    STEEP_LIMIT_SHARE,
+    STEEP_MAX_SLOPE_DEG,
     TOP_DOWN_MAX_CONTROL_POINTS,
     TerrainFit,
     default_control_points,
@@ -73,8 +76,13 @@ class RationalBSplineTerrain(Stage):
              "have no vertical extent beyond the local terrain rise are not rejected as "
              "obstacles (steep berms, ditch walls); false = plain robust weights",
     )
-    max_slope_deg: float = option(MAX_SLOPE_DEG, unit="deg", rule=Range(1, 89),
-                                  help="terrain_prior: steepest terrain the prior accepts")
+    max_slope_deg: float | None = option(
+        None, kind=float, nullable=True, unit="deg", rule=Range(1, 89),
+        help="terrain_prior: steepest terrain the prior accepts; null = 45, or 60 on a "
+             "vehicle's scan of strong relief (slopes that change, not a tilt: "
+             "o3d_terrain.refine.steep_share at least 0.4), where the fit is then made again; "
+             "raise it for the bench faces of pits and cuttings (docs/algorithm.md, 'Steep "
+             "slopes and faces')")
     gap_slope_deg: float = option(20.0, unit="deg", rule=Range(0, 89),
                                   help="terrain_prior: slope of the cone that crosses empty cells")
     max_obstacle_width: float = option(40.0, unit="m", rule=POSITIVE,
@@ -148,10 +156,9 @@ class RationalBSplineTerrain(Stage):
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
-        # whether the scan is top-down, asked only when the layout or the knots depend on it
-        top_down = positions is not None and self.method == "robust" \
-            and (control_points is None or self.knots == "auto") \
-            and not sensor_in_cloud(positions, self.sensor_origin)
+        robust = positions is not None and self.method == "robust"
+        # a vehicle's scan (points around sensor_origin) or a top-down one (an airborne tile)
+        top_down = robust and not sensor_in_cloud(positions, self.sensor_origin)
         if control_points is None and top_down:
             # a top-down scan (an airborne tile) is not fitted at a vehicle's frame rate
             control_points = default_control_points(grid, self.degree,
@@ -159,34 +166,51 @@ class RationalBSplineTerrain(Stage):
         knots = self.knots
         if knots == "auto":
             knots = "uniform" if top_down else "adaptive"
-        fit = fit_grid_detailed(
-            grid, control_points=control_points, degree=self.degree,
+        options = dict(
+            control_points=control_points, degree=self.degree,
             method=self.method, smoothing=self.smoothing, noise_floor=self.noise_floor,
             rational=self.rational, terrain_prior=self.terrain_prior,
-            max_slope_deg=self.max_slope_deg, gap_slope_deg=self.gap_slope_deg,
+            max_slope_deg=self.slope_limit, gap_slope_deg=self.gap_slope_deg,
             max_obstacle_width=self.max_obstacle_width,
             positions=positions if self.ground_layer else None,
             ground_layer=self.ground_layer, range_noise=range_noise,
             cell_plane=self.cell_plane, sensor_origin=self.sensor_origin, knots=knots,
         )
-        surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
+        fit = fit_grid_detailed(grid, **options)
         # with a range-noise model the loop already weighs each cell's noise, which the refit
         # (one weight per cell) would not: measured on the synthetic stereo scenes, the refit
         # helps their fit without the model (RMSE 0.10 -> 0.08 m on hills) and not with it
-        if not (self.refine and self.method == "robust" and positions is not None
-                and range_noise is None):
+        refit = self.refine and robust and range_noise is None
+        auto_slope = self.max_slope_deg is None and self.terrain_prior
+        # a vehicle's scan of relief: the refit's automatic layout grows on steep relief, and
+        # on strong relief the prior's automatic slope limit rises and the fit is made again
+        # (docs/algorithm.md, "A finer refit on steep relief", "A steeper slope limit on
+        # strong relief")
+        share = 0.0
+        if robust and not top_down and (auto_slope or (refit and self.control_points is None)):
+            share = steep_share(fit.surface, grid)
+        if auto_slope and share >= STEEP_LIMIT_SHARE:
+            fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
+        steep = share >= STEEP_SHARE
+        surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
+        if not refit:
             return dataclasses.replace(fit, surface=surface)
         # an automatic layout may grow for the refit's one solve (o3d_terrain.refine), more
-        # on a vehicle's scan of steep relief; a layout the user chose stays
+        # on steep relief; a layout the user chose stays
+        most = None
+        if self.control_points is None:
+            most = STEEP_REFINE_MAX_CONTROL_POINTS if steep else REFINE_MAX_CONTROL_POINTS
         refined, _ = refine_surface(surface, positions, cell_size=grid.cell_size,
                                     smoothing=self.smoothing, noise_floor=self.noise_floor,
                                     sensor_origin=self.sensor_origin,
-                                    cell_plane=self.cell_plane,
-                                    max_control_points=REFINE_MAX_CONTROL_POINTS
-                                    if self.control_points is None else None,
-                                    steep_max_control_points=None if top_down
-                                    else STEEP_REFINE_MAX_CONTROL_POINTS)
+                                    cell_plane=self.cell_plane, max_control_points=most)
         return dataclasses.replace(fit, surface=refined, robust_surface=surface)
+
+    @property
+    def slope_limit(self) -> float:
+        """The prior's slope limit before the scan is looked at (deg): ``max_slope_deg``, or
+        :data:`~o3d_terrain.terrain.MAX_SLOPE_DEG` when that is automatic (null)."""
+        return MAX_SLOPE_DEG if self.max_slope_deg is None else float(self.max_slope_deg)
 
 
 @stage
