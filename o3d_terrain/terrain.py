@@ -125,6 +125,12 @@ class TerrainFit:
     # the robust loop's surface when ``surface`` is its refit to the terrain points
     # (RationalBSplineTerrain's refine, o3d_terrain.refine); None = surface is the loop's own
     robust_surface: TerrainSurface | None = None
+    # the terrain prior's slope limit the fit used (deg; None without the prior)
+    max_slope_deg: float | None = None
+    # RationalBSplineTerrain: the share of the grid's measured cells on relief
+    # (o3d_terrain.refine.steep_share) that chose the slope limit and the refit's layout;
+    # None when the stage did not need it (a top-down scan, a layout and a limit given)
+    relief_share: float | None = None
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,
@@ -348,7 +354,9 @@ def fit_grid_detailed(
     if method == "paper":
         samples = np.where(valid, samples + z0, np.nan)
     surface = TerrainSurface(degree, basis.knots_x, basis.knots_y, q, r, origin)
-    return TerrainFit(surface, records, weights, samples, equalized, outliers, noise)
+    return TerrainFit(surface, records, weights, samples, equalized, outliers, noise,
+                      max_slope_deg=float(max_slope_deg)
+                      if terrain_prior and method == "robust" else None)
 
 
 def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = MAX_SLOPE_DEG,

@@ -108,6 +108,10 @@ def test_the_automatic_limit_rises_on_steep_relief_and_not_for_a_tilt(rng):
         fit = stage.fit(grid, p)
         share = steep_share(fit.robust_surface, grid)
         assert (share >= STEEP_LIMIT_SHARE) == steep, share
+        # the fit says which limit it used and the share that chose it (measured on the
+        # first fit's surface, before the fit with the steeper limit)
+        assert fit.max_slope_deg == (STEEP_MAX_SLOPE_DEG if steep else MAX_SLOPE_DEG)
+        assert (fit.relief_share >= STEEP_LIMIT_SHARE) == steep, fit.relief_share
         # the automatic limit labels as the fixed limit it chose does
         chosen = STEEP_MAX_SLOPE_DEG if steep else MAX_SLOPE_DEG
         _, auto = segment_terrain(p)
@@ -125,6 +129,8 @@ def test_a_given_limit_is_kept_on_steep_relief(rng):
     grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
     given = stage.fit(grid, p)
     assert steep_share(given.robust_surface, grid) >= STEEP_LIMIT_SHARE
+    assert given.max_slope_deg == 45.0
     auto = RationalBSplineTerrain().fit(grid, p)
+    assert auto.max_slope_deg == STEEP_MAX_SLOPE_DEG
     assert not np.allclose(given.robust_surface.control_points,
                            auto.robust_surface.control_points)

@@ -186,13 +186,14 @@ class RationalBSplineTerrain(Stage):
         # on strong relief the prior's automatic slope limit rises and the fit is made again
         # (docs/algorithm.md, "A finer refit on steep relief", "A steeper slope limit on
         # strong relief")
-        share = 0.0
+        share = None
         if robust and not top_down and (auto_slope or (refit and self.control_points is None)):
             share = steep_share(fit.surface, grid)
-        if auto_slope and share >= STEEP_LIMIT_SHARE:
+        if auto_slope and share is not None and share >= STEEP_LIMIT_SHARE:
             fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
-        steep = share >= STEEP_SHARE
+        steep = share is not None and share >= STEEP_SHARE
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
+        fit = dataclasses.replace(fit, relief_share=share)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
         # an automatic layout may grow for the refit's one solve (o3d_terrain.refine), more
