@@ -134,3 +134,13 @@ def test_a_given_limit_is_kept_on_steep_relief(rng):
     assert auto.max_slope_deg == STEEP_MAX_SLOPE_DEG
     assert not np.allclose(given.robust_surface.control_points,
                            auto.robust_surface.control_points)
+
+
+def test_without_the_prior_no_slope_limit_is_recorded_or_chosen(rng):
+    p = _pitched_scan(_relief, 25.0, rng)
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=0.03)
+    plain = RationalBSplineTerrain(terrain_prior=False).fit(grid, p)
+    assert plain.max_slope_deg is None
+    assert plain.relief_share is not None  # still measured: the refit's layout needs it
+    paper = RationalBSplineTerrain(method="paper").fit(grid, p)
+    assert paper.max_slope_deg is None and paper.relief_share is None
