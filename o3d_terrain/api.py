@@ -181,9 +181,10 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     docs/algorithm.md); False = plain robust weights.
     max_slope_deg: the prior's slope limit (deg): faces steeper than this are walls, not
     terrain. None = 45 (:data:`o3d_terrain.terrain.MAX_SLOPE_DEG`), or 60 on a vehicle's scan
-    of strong relief (slopes that change, not a tilt; :func:`o3d_terrain.refine.steep_share`
-    at least :data:`o3d_terrain.terrain.STEEP_LIMIT_SHARE`), where the fit is then made again
-    (docs/algorithm.md, "A steeper slope limit on strong relief"). Give it (e.g. 60-75) for
+    of strong relief (slopes that change, not a tilt: :func:`o3d_terrain.refine.steep_share`
+    of the robust fit's coarse layouts at least :data:`o3d_terrain.terrain.STEEP_LIMIT_SHARE`),
+    where the fit then starts again (docs/algorithm.md, "A steeper slope limit on strong
+    relief"). Give it (e.g. 60-75) for
     the bench faces of pits and cuttings; on street scenes a higher limit connects the walls
     of cars and buildings to the ground (docs/algorithm.md, "Steep slopes and faces").
     range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`

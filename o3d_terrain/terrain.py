@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -45,12 +45,13 @@ METHODS = ("robust", "paper")
 #: the walls of cars and buildings to the ground (docs/algorithm.md, "Steep faces")
 MAX_SLOPE_DEG = 45.0
 #: the slope limit the automatic choice takes on a vehicle's scan of strong relief: at least
-#: STEEP_LIMIT_SHARE of its measured cells where the robust surface's normal turns more than
-#: 15 degrees from its median normal (:func:`o3d_terrain.refine.steep_share`; the fit is then
-#: made again): a vehicle tilted by the slope it stands on sees the slopes ahead of it
-#: steeper than they are (docs/algorithm.md, "A steeper slope limit on strong relief")
+#: STEEP_LIMIT_SHARE of its measured cells where the surface of the robust fit's last coarse
+#: layout turns its normal more than 15 degrees from the median normal
+#: (:func:`o3d_terrain.refine.steep_share`; the fit then starts again): a vehicle tilted by the
+#: slope it stands on sees the slopes ahead of it steeper than they are (docs/algorithm.md,
+#: "A steeper slope limit on strong relief")
 STEEP_MAX_SLOPE_DEG = 60.0
-STEEP_LIMIT_SHARE = 0.4
+STEEP_LIMIT_SHARE = 0.35
 
 #: smallest noise threshold of the robust weights (m); also the least height spread a cell's
 #: plane must give its points to replace eq. 1 (``cell_plane``)
@@ -128,7 +129,8 @@ class TerrainFit:
     # the terrain prior's slope limit the fit used (deg; None without the prior)
     max_slope_deg: float | None = None
     # RationalBSplineTerrain: the share of the grid's measured cells on relief
-    # (o3d_terrain.refine.steep_share) that chose the slope limit and the refit's layout;
+    # (o3d_terrain.refine.steep_share) that chose the slope limit and the refit's layout: of
+    # the last coarse layout's surface when it raised the limit, else of the robust fit's;
     # None when the stage did not need it (a top-down scan, a layout and a limit given)
     relief_share: float | None = None
 
@@ -180,7 +182,8 @@ def fit_grid_detailed(
     cell_plane: bool = False,
     sensor_origin: Sequence[float] | None = None,
     knots: str = "uniform",
-) -> TerrainFit:
+    stop_after_coarse: Callable[[TerrainSurface], bool] | None = None,
+) -> TerrainFit | None:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
     control_points: (n0 + 1, n1 + 1) per axis at the end of the growth; None = from the grid's
@@ -239,6 +242,10 @@ def fit_grid_detailed(
         measured cells and wider where it has few, when the layout's uniform spacing is
         coarse for the grid (:func:`knot_densities`; the stage's default on a vehicle's
         scan).
+    stop_after_coarse: (robust) called with the surface of the last coarse layout, before the
+        finest one is fitted; when it returns True the fit stops there and returns None (the
+        stage RationalBSplineTerrain fits again with a steeper slope limit on strong relief);
+        not called when the growth has a single layout.
     """
     problems = []
     if knots not in KNOT_PLACEMENTS:
@@ -346,10 +353,18 @@ def fit_grid_detailed(
             centre if use_mean else np.zeros((0, 0)), compact if use_mean else
             np.zeros((0, 0), bool), z0, noise_floor, filled_weight, MEASURED, FILLED)
         densities = knot_densities(grid, n_max, degree) if knots == "adaptive" else None
+        on_coarse = None
+        if stop_after_coarse is not None:
+            def on_coarse(basis, q, r):
+                return stop_after_coarse(
+                    TerrainSurface(degree, basis.knots_x, basis.knots_y, q, r, origin))
         with one_blas_thread():  # small banded solves: BLAS threads cost more than they give
             fit = _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree,
                               rational, smoothing, noise_floor, max_iterations, prior,
-                              grid_noise, z0, grid.state, float(grid.cell_size), densities)
+                              grid_noise, z0, grid.state, float(grid.cell_size), densities,
+                              on_coarse)
+        if fit is None:
+            return None
     q, r, basis, weights, samples, equalized, outliers, records, noise = fit
     if method == "paper":
         samples = np.where(valid, samples + z0, np.nan)
@@ -586,13 +601,15 @@ def _layouts(n_max, degree):
 
 def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational, smoothing,
                 noise_floor, max_iterations, prior=None, grid_noise=None, z0=0.0, state=None,
-                cell_size=0.0, densities=None):
+                cell_size=0.0, densities=None, on_coarse=None):
     """The robust loop on samples ``z`` (relative to z0) and base weights ``base``; returns
     (Q, R, basis, W, samples, equalized, outliers, records, noise) with the samples in world
     z on the cells of ``state`` != 0 (default: base > 0), NaN elsewhere. ``prior``: (m0, m1)
     grids (protected cells, their threshold widening, the terrain prior's compact cells) or
     None. ``cell_size`` (m, with ``prior``): the grid's, for the runs of
-    :func:`_restore_long_terrain` (0: none)."""
+    :func:`_restore_long_terrain` (0: none). ``on_coarse``: called with (basis, Q, R) of the
+    last coarse layout before the finest one is fitted; when it returns True the loop stops
+    there and returns None (no call when there is a single layout)."""
     above_k = 2.5  # threshold above the surface, in noise scales
     below_k = 6.0  # threshold below the surface (low outliers), in noise scales
     clip_k = 3.0  # equalization clips samples to S + clip_k * threshold_above
@@ -643,8 +660,10 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
         if densities is not None:
             knots = (clamped_knots(n[0], degree, *region_local[:2], densities[0]),
                      clamped_knots(n[1], degree, *region_local[2:], densities[1]))
-        basis = GridBasis(xl, yl, n, degree, region_local, knots)
         final = level == len(layouts) - 1
+        if final and level > 0 and on_coarse is not None and on_coarse(*last_fit):
+            return None  # the caller fits again (stop_after_coarse of fit_grid_detailed)
+        basis = GridBasis(xl, yl, n, degree, region_local, knots)
         if final and level > 0 and filled.size:
             # the filled cells: the last coarse surface at them, then their weights, ratios
             # and equalized samples from it (one robust pass over them alone)

@@ -14,6 +14,7 @@ from ..refine import (REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS
                       refine_surface, steep_share)
 from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_GAP, FOOT_HEIGHT, FOOT_LINES,
                        TerrainLabel, segment_points, sensor_in_cloud)
+from ..spline import TerrainSurface
 from ..terrain import (
     KNOT_PLACEMENTS,
     MAX_SLOPE_DEG,
@@ -80,7 +81,8 @@ class RationalBSplineTerrain(Stage):
         None, kind=float, nullable=True, unit="deg", rule=Range(1, 89),
         help="terrain_prior: steepest terrain the prior accepts; null = 45, or 60 on a "
              "vehicle's scan of strong relief (slopes that change, not a tilt: "
-             "o3d_terrain.refine.steep_share at least 0.4), where the fit is then made again; "
+             "o3d_terrain.refine.steep_share of the coarse layouts' surface at least 0.35), "
+             "where the fit then starts again; "
              "raise it for the bench faces of pits and cuttings (docs/algorithm.md, 'Steep "
              "slopes and faces')")
     gap_slope_deg: float = option(20.0, unit="deg", rule=Range(0, 89),
@@ -176,21 +178,31 @@ class RationalBSplineTerrain(Stage):
             ground_layer=self.ground_layer, range_noise=range_noise,
             cell_plane=self.cell_plane, sensor_origin=self.sensor_origin, knots=knots,
         )
-        fit = fit_grid_detailed(grid, **options)
         # with a range-noise model the loop already weighs each cell's noise, which the refit
         # (one weight per cell) would not: measured on the synthetic stereo scenes, the refit
         # helps their fit without the model (RMSE 0.10 -> 0.08 m on hills) and not with it
         refit = self.refine and robust and range_noise is None
         auto_slope = self.max_slope_deg is None and self.terrain_prior
-        # a vehicle's scan of relief: the refit's automatic layout grows on steep relief, and
-        # on strong relief the prior's automatic slope limit rises and the fit is made again
-        # (docs/algorithm.md, "A finer refit on steep relief", "A steeper slope limit on
-        # strong relief")
-        share = None
-        if robust and not top_down and (auto_slope or (refit and self.control_points is None)):
-            share = steep_share(fit.surface, grid)
-        if auto_slope and share is not None and share >= STEEP_LIMIT_SHARE:
+        vehicle = robust and not top_down
+        # a vehicle's scan of relief: on strong relief, seen by the coarse layouts already, the
+        # prior's automatic slope limit rises and the fit starts again; on steep relief the
+        # refit's automatic layout grows (docs/algorithm.md, "A steeper slope limit on strong
+        # relief", "A finer refit on steep relief")
+        coarse_share = []
+
+        def strong_relief(coarse: TerrainSurface) -> bool:
+            coarse_share.append(steep_share(coarse, grid))
+            return coarse_share[-1] >= STEEP_LIMIT_SHARE
+
+        fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief
+                                if vehicle and auto_slope else None)
+        if fit is None:
             fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
+            share = coarse_share[-1]
+        elif vehicle and (auto_slope or (refit and self.control_points is None)):
+            share = steep_share(fit.surface, grid)
+        else:
+            share = None
         steep = share is not None and share >= STEEP_SHARE
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         fit = dataclasses.replace(fit, relief_share=share)
