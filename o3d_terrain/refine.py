@@ -123,16 +123,13 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
 
 
 def steep_share(surface: TerrainSurface, grid: HeightGrid,
-                slope_deg: float = STEEP_SLOPE_DEG, cells: np.ndarray | None = None
-                ) -> float:
+                slope_deg: float = STEEP_SLOPE_DEG) -> float:
     """The share of ``grid``'s measured cells (at most :data:`STEEP_SAMPLE` of them,
     evenly picked) at whose centre the normal of ``surface`` turns more than ``slope_deg``
     from the median of those normals: ground whose slope changes. A uniform tilt (a sensor
     pitched over a level street) scores 0 however steep it makes the ground in the cloud's
-    frame; 0 with no measured cell. ``cells``: the measured cells' flat indices when the
-    caller has them."""
-    if cells is None:
-        cells = np.flatnonzero((grid.state == MEASURED).ravel())
+    frame; 0 with no measured cell."""
+    cells = np.flatnonzero((grid.state == MEASURED).ravel())
     if cells.size == 0:
         return 0.0
     ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_SAMPLE)], grid.state.shape[1])

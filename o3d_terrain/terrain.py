@@ -35,8 +35,8 @@ from .threads import one_blas_thread
 
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
            "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
-           "MAX_SLOPE_DEG", "STEEP_MAX_SLOPE_DEG", "STEEP_LIMIT_SHARE", "NOISE_FLOOR", "TOP_DOWN_MAX_CONTROL_POINTS",
-           "KNOT_PLACEMENTS", "knot_densities"]
+           "MAX_SLOPE_DEG", "STEEP_MAX_SLOPE_DEG", "STEEP_LIMIT_SHARE", "NOISE_FLOOR",
+           "TOP_DOWN_MAX_CONTROL_POINTS", "KNOT_PLACEMENTS", "knot_densities"]
 
 METHODS = ("robust", "paper")
 
@@ -130,8 +130,9 @@ class TerrainFit:
     max_slope_deg: float | None = None
     # RationalBSplineTerrain: the share of the grid's measured cells on relief
     # (o3d_terrain.refine.steep_share) that chose the slope limit and the refit's layout: of
-    # the last coarse layout's surface when it raised the limit, else of the robust fit's;
-    # None when the stage did not need it (a top-down scan, a layout and a limit given)
+    # the robust fit's surface when the refit's automatic layout needed it and the limit did
+    # not rise, else of its last coarse layout's; None when the stage needed neither (a
+    # top-down scan; a limit given and no automatic refit layout)
     relief_share: float | None = None
 
 

@@ -196,13 +196,11 @@ class RationalBSplineTerrain(Stage):
 
         fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief
                                 if vehicle and auto_slope else None)
+        share = coarse_share[-1] if coarse_share else None
         if fit is None:
             fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
-            share = coarse_share[-1]
-        elif vehicle and (auto_slope or (refit and self.control_points is None)):
-            share = steep_share(fit.surface, grid)
-        else:
-            share = None
+        elif vehicle and refit and self.control_points is None:
+            share = steep_share(fit.surface, grid)  # the refit's layout: the final surface's
         steep = share is not None and share >= STEEP_SHARE
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         fit = dataclasses.replace(fit, relief_share=share)
