@@ -130,10 +130,14 @@ class TerrainFit:
     max_slope_deg: float | None = None
     # RationalBSplineTerrain: the share of the grid's measured cells on relief
     # (o3d_terrain.refine.steep_share) that chose the slope limit and the refit's layout: of
-    # the robust fit's surface when the refit's automatic layout needed it and the limit did
-    # not rise, else of its last coarse layout's; None when the stage needed neither (a
-    # top-down scan; a limit given and no automatic refit layout)
+    # the robust fit's surface when the refit's automatic layout needed it and the share did
+    # not raise the limit (a bench face may have), else of its last coarse layout's; None when
+    # the stage needed neither (a top-down scan; a limit given and no automatic refit layout)
     relief_share: float | None = None
+    # RationalBSplineTerrain: the longest run of bench-face cells (m, o3d_terrain.faces.face_run)
+    # measured against the last coarse layout's ground normal when the relief share alone did
+    # not raise the automatic slope limit; None when it was not measured
+    face_run: float | None = None
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,

@@ -488,3 +488,112 @@ def finite_bounds(x, y, z):
             if y[k] > y_max:
                 y_max = y[k]
     return x_min, x_max, y_min, y_max, n
+
+
+
+@numba.njit(cache=True)
+def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
+    """Per slot (``slot``: flat cell index -> slot, -1 for cells not wanted; ``count`` slots)
+    the total-least-squares plane of the cell's points: its upward unit normal (count, 3) and
+    the root mean square of the points about it along the normal and along the plane's second
+    direction (the covariance's least and middle eigenvalues, square-rooted), (count,) each;
+    NaN for slots with fewer than 3 points. One pass over the points, the sums taken about
+    the cell's centre and ``base[c]`` (a height in the cell, e.g. its lowest) so that they
+    stay small; non-finite points and points outside the grid are skipped."""
+    n_points = positions.shape[0]
+    cells = np.empty(n_points, np.int32)
+    for k in range(n_points):  # in a loop of its own, as quantize's (vectorised)
+        cells[k] = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+    sums = np.zeros((count, 10))  # n, x, y, z, xx, xy, xz, yy, yz, zz
+    for k in range(n_points):
+        c = cells[k]
+        if c < 0 or slot[c] < 0:
+            continue
+        z = positions[k, 2]
+        if not math.isfinite(z):
+            continue
+        s = slot[c]
+        dx = positions[k, 0] - (x_min + (c // ny + 0.5) * cell_size)
+        dy = positions[k, 1] - (y_min + (c % ny + 0.5) * cell_size)
+        dz = z - base[c]
+        sums[s, 0] += 1.0
+        sums[s, 1] += dx
+        sums[s, 2] += dy
+        sums[s, 3] += dz
+        sums[s, 4] += dx * dx
+        sums[s, 5] += dx * dy
+        sums[s, 6] += dx * dz
+        sums[s, 7] += dy * dy
+        sums[s, 8] += dy * dz
+        sums[s, 9] += dz * dz
+    normal = np.full((count, 3), np.nan)
+    thickness = np.full(count, np.nan)
+    width = np.full(count, np.nan)
+    a = np.empty((3, 3))
+    for s in range(count):
+        n = sums[s, 0]
+        if n < 3:
+            continue
+        mx, my, mz = sums[s, 1] / n, sums[s, 2] / n, sums[s, 3] / n
+        a[0, 0] = sums[s, 4] / n - mx * mx
+        a[0, 1] = a[1, 0] = sums[s, 5] / n - mx * my
+        a[0, 2] = a[2, 0] = sums[s, 6] / n - mx * mz
+        a[1, 1] = sums[s, 7] / n - my * my
+        a[1, 2] = a[2, 1] = sums[s, 8] / n - my * mz
+        a[2, 2] = sums[s, 9] / n - mz * mz
+        least, middle = _symmetric_eigenvalues(a)
+        if not _eigenvector(a, least, normal[s]):
+            continue
+        if normal[s, 2] < 0:
+            for i in range(3):
+                normal[s, i] = -normal[s, i]
+        thickness[s] = math.sqrt(max(least, 0.0))
+        width[s] = math.sqrt(max(middle, 0.0))
+    return normal, thickness, width
+
+
+@numba.njit(cache=True)
+def _symmetric_eigenvalues(a):
+    """The least and the middle eigenvalue of a symmetric 3 x 3 matrix, in closed form (the
+    trigonometric solution of the characteristic cubic): a LAPACK call per cell costs more
+    than the cell's sums."""
+    p1 = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+    q = (a[0, 0] + a[1, 1] + a[2, 2]) / 3.0
+    p2 = (a[0, 0] - q) ** 2 + (a[1, 1] - q) ** 2 + (a[2, 2] - q) ** 2 + 2.0 * p1
+    if p2 <= 0.0:  # a multiple of the identity
+        return q, q
+    p = math.sqrt(p2 / 6.0)
+    b00, b11, b22 = (a[0, 0] - q) / p, (a[1, 1] - q) / p, (a[2, 2] - q) / p
+    b01, b02, b12 = a[0, 1] / p, a[0, 2] / p, a[1, 2] / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+               + b02 * (b01 * b12 - b11 * b02))
+    phi = math.acos(min(max(r, -1.0), 1.0)) / 3.0
+    largest = q + 2.0 * p * math.cos(phi)
+    least = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return least, 3.0 * q - largest - least
+
+
+@numba.njit(cache=True)
+def _eigenvector(a, value, out):
+    """Unit eigenvector of the symmetric 3 x 3 matrix ``a`` for its least eigenvalue
+    ``value`` into ``out``: the largest cross product of two rows of a - value I; False when
+    every cross product vanishes (a repeated least eigenvalue: no single direction)."""
+    best = 0.0
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        ui = (a[i, 0] - (value if i == 0 else 0.0), a[i, 1] - (value if i == 1 else 0.0),
+              a[i, 2] - (value if i == 2 else 0.0))
+        uj = (a[j, 0] - (value if j == 0 else 0.0), a[j, 1] - (value if j == 1 else 0.0),
+              a[j, 2] - (value if j == 2 else 0.0))
+        cx = ui[1] * uj[2] - ui[2] * uj[1]
+        cy = ui[2] * uj[0] - ui[0] * uj[2]
+        cz = ui[0] * uj[1] - ui[1] * uj[0]
+        norm = cx * cx + cy * cy + cz * cz
+        if norm > best:
+            best = norm
+            out[0], out[1], out[2] = cx, cy, cz
+    if not best > 0.0:
+        return False
+    scale = 1.0 / math.sqrt(best)
+    for i in range(3):
+        out[i] *= scale
+    return True

@@ -6,14 +6,29 @@ import dataclasses
 
 import numpy as np
 
+from ..faces import FACE_RUN, face_limit, face_run, planar_cells
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid, with_cell_planes
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
-from ..refine import (REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS, STEEP_SHARE,
-                      refine_surface, steep_share)
-from ..segment import (FOOT_BEHIND, FOOT_CELL, FOOT_GAP, FOOT_HEIGHT, FOOT_LINES,
-                       TerrainLabel, segment_points, sensor_in_cloud)
+from ..refine import (
+    REFINE_MAX_CONTROL_POINTS,
+    STEEP_REFINE_MAX_CONTROL_POINTS,
+    STEEP_SHARE,
+    refine_surface,
+    relief,
+    steep_share,
+)
+from ..segment import (
+    FOOT_BEHIND,
+    FOOT_CELL,
+    FOOT_GAP,
+    FOOT_HEIGHT,
+    FOOT_LINES,
+    TerrainLabel,
+    segment_points,
+    sensor_in_cloud,
+)
 from ..spline import TerrainSurface
 from ..terrain import (
     KNOT_PLACEMENTS,
@@ -82,9 +97,10 @@ class RationalBSplineTerrain(Stage):
         help="terrain_prior: steepest terrain the prior accepts; null = 45, or 60 on a "
              "vehicle's scan of strong relief (slopes that change, not a tilt: "
              "o3d_terrain.refine.steep_share of the coarse layouts' surface at least 0.35), "
-             "where the fit then starts again; "
-             "raise it for the bench faces of pits and cuttings (docs/algorithm.md, 'Steep "
-             "slopes and faces')")
+             "or the faces' tilt + 5 (60 to 70) on a vehicle's scan of a bench face (planar "
+             "cells 50-75 deg from the ground in a run of 10 m or more: o3d_terrain.faces), "
+             "where the fit then starts again; give it for faces that are terrain to you and "
+             "steeper than that (docs/algorithm.md, 'Steep slopes and faces', 'Bench faces')")
     gap_slope_deg: float = option(20.0, unit="deg", rule=Range(0, 89),
                                   help="terrain_prior: slope of the cone that crosses empty cells")
     max_obstacle_width: float = option(40.0, unit="m", rule=POSITIVE,
@@ -184,26 +200,44 @@ class RationalBSplineTerrain(Stage):
         refit = self.refine and robust and range_noise is None
         auto_slope = self.max_slope_deg is None and self.terrain_prior
         vehicle = robust and not top_down
-        # a vehicle's scan of relief: on strong relief, seen by the coarse layouts already, the
-        # prior's automatic slope limit rises and the fit starts again; on steep relief the
-        # refit's automatic layout grows (docs/algorithm.md, "A steeper slope limit on strong
-        # relief", "A finer refit on steep relief")
+        # a vehicle's scan of relief: on strong relief, seen by the coarse layouts already, or
+        # with a long bench face in its points, the prior's automatic slope limit rises and the
+        # fit starts again; on steep relief the refit's automatic layout grows
+        # (docs/algorithm.md, "A steeper slope limit on strong relief", "Bench faces", "A finer
+        # refit on steep relief")
         coarse_share = []
+        runs = []
+        limit = [STEEP_MAX_SLOPE_DEG]
+        faces = planar_cells(grid, positions) if vehicle and auto_slope else None
 
         def strong_relief(coarse: TerrainSurface) -> bool:
-            coarse_share.append(steep_share(coarse, grid))
-            return coarse_share[-1] >= STEEP_LIMIT_SHARE
+            share, up = relief(coarse, grid)
+            coarse_share.append(share)
+            if share >= STEEP_LIMIT_SHARE:
+                return True
+            if faces is None or faces.cells.size == 0:
+                return False
+            run, tilt = face_run(faces, up)  # the faces' tilt from the ground the fit sees
+            runs.append(run)
+            if run < FACE_RUN:
+                return False
+            limit[0] = face_limit(tilt)  # the faces' own steepness, 60 to 70 degrees
+            return True
 
         fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief
                                 if vehicle and auto_slope else None)
         share = coarse_share[-1] if coarse_share else None
-        if fit is None:
-            fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
-        elif vehicle and refit and self.control_points is None:
-            share = steep_share(fit.surface, grid)  # the refit's layout: the final surface's
+        raised = fit is None
+        if raised:
+            fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=limit[0]))
+        if vehicle and refit and self.control_points is None and not (
+                raised and share >= STEEP_LIMIT_SHARE):
+            # the refit's layout: the final surface's share (a coarse share that raised the
+            # limit is steep already; a bench face raises it on a surface that was flat)
+            share = steep_share(fit.surface, grid)
         steep = share is not None and share >= STEEP_SHARE
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
-        fit = dataclasses.replace(fit, relief_share=share)
+        fit = dataclasses.replace(fit, relief_share=share, face_run=runs[-1] if runs else None)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
         # an automatic layout may grow for the refit's one solve (o3d_terrain.refine), more

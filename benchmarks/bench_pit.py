@@ -1,0 +1,101 @@
+"""Open-pit benches: ground F1 and obstacle recall of the automatic slope limit against fixed
+limits (and, with --peers, the peers of the bench extra) on a synthetic pit (prints
+Markdown, no assertions).
+
+The pit: four benches rising along +x from x = 10 m, 6 m faces of 45-75 degrees with 8 m
+berms between them (``synthetic.Ramp`` features), a 64-line lidar on the pit floor at the
+origin, 1.8 m (a pickup) or 4 m (a haul truck's cab) above it; a pole, a pedestrian, a car, a
+rock and a truck stand on the floor. Ground is every point not on an object; obstacle recall
+counts the points of objects more than 0.3 m above the ground. The lidar sees the lower part
+of the first face and the floor; the berms above it are hidden, so the faces are the only
+relief in the scan (docs/algorithm.md, "Bench faces").
+
+Run: .venv/bin/python benchmarks/bench_pit.py [--angles 55,65,75] [--heights 1.8,4] [--peers]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np
+
+import o3d_terrain
+from o3d_terrain.evaluation.peers import make_peer
+from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
+from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
+
+#: where the default objects stand: on the pit floor, clear of the first face
+PLACES = {"pole": (5.0, 6.0), "pedestrian": (4.0, -3.0), "car": (-8.0, 5.0), "rock": (6.0, -8.0),
+          "truck": (0.0, 14.0)}
+LIMITS = (None, 45.0, 60.0, 65.0, 70.0, 75.0)
+OBSTACLE_HEIGHT = 0.3
+
+
+def pit_scene(angle_deg: float, *, benches: int = 4, height: float = 6.0,
+              berm: float = 8.0) -> Scene:
+    """Benches of ``height`` m faces at ``angle_deg`` and ``berm`` m berms from x = 10 m."""
+    run = height / math.tan(math.radians(angle_deg))
+    features = (Plane(),) + tuple(Ramp(10.0 + k * (run + berm), 0.0, 0.0, angle_deg, run)
+                                  for k in range(benches))
+    objects = tuple(Obstacle(o.kind, PLACES[o.kind], o.size, o.height, o.yaw_deg)
+                    for o in default_obstacles(0))
+    return Scene(f"pit {angle_deg:g}", features, objects, region=(-40.0, 70.0, -40.0, 40.0))
+
+
+def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> str:
+    tp = float(np.sum(ground & truth))
+    precision = tp / max(float(ground.sum()), 1.0)
+    recall = tp / max(float(truth.sum()), 1.0)
+    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
+    return f"{f1:.4f} / {float(np.mean(~ground[tall])):.3f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--angles", default="45,55,65,75", help="face angles (deg)")
+    parser.add_argument("--heights", default="1.8,4", help="sensor heights above the floor (m)")
+    parser.add_argument("--peers", action="store_true",
+                        help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
+    args = parser.parse_args()
+    peers = ["patchworkpp", "csf", "smrf", "ransac_plane"] if args.peers else []
+    columns = ["automatic" if v is None else f"{v:g}°" for v in LIMITS] + peers
+    print("ground F1 / obstacle recall; `segment_terrain` with `max_slope_deg` automatic or fixed")
+    print("| faces | sensor height (m) | points | limit chosen (face run, m) | "
+          + " | ".join(columns) + " |")
+    print("|---|---:|---:|---:|" + "---|" * len(columns))
+    for angle in (float(a) for a in args.angles.split(",")):
+        scene = pit_scene(angle)
+        for height in (float(h) for h in args.heights.split(",")):
+            cloud = sample_lidar(scene, beams=64, azimuth_steps=1800, fov_deg=(-24.8, 2.0),
+                                 sensor_height=height, seed=0)
+            p = np.asarray(cloud.positions, dtype=np.float64)
+            keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
+            p = p[keep]
+            truth = ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
+            tall = ~truth & (cloud.true_height_above_terrain[keep] > OBSTACLE_HEIGHT)
+            cells = []
+            for limit in LIMITS:
+                _, inliers = o3d_terrain.segment_terrain(p, max_slope_deg=limit)
+                ground = np.zeros(len(p), bool)
+                ground[inliers] = True
+                cells.append(score(ground, truth, tall))
+            for name in peers:
+                ground = np.asarray(make_peer(name, sensor_height=height).segment(p), bool)
+                cells.append(score(ground, truth, tall))
+            frame = o3d_terrain.stages.RationalBSplineTerrain()(
+                o3d_terrain.stages.GridQuantize()(p))
+            fit = frame.product("terrain_fit")
+            run = "-" if fit.face_run is None else f"{fit.face_run:.1f}"
+            print(f"| {angle:g}° | {height:g} | {len(p):,} | {fit.max_slope_deg:.1f}° ({run}) | "
+                  + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

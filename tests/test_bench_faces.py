@@ -1,0 +1,121 @@
+"""Bench faces (o3d_terrain.faces): long planar faces of 50-75 degrees in a vehicle's scan
+raise the terrain prior's automatic slope limit, which the relief share of the coarse surface
+does not do for a pit's benches seen from its floor (docs/algorithm.md, "Bench faces")."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from o3d_terrain.api import segment_terrain
+from o3d_terrain.faces import FACE_MAX_LIMIT_DEG, FACE_RUN, face_limit, face_run, planar_cells
+from o3d_terrain.grid import quantize_points
+from o3d_terrain.refine import steep_share
+from o3d_terrain.stages import RationalBSplineTerrain
+from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
+from o3d_terrain.synthetic.scene import default_obstacles
+from o3d_terrain.synthetic.sensors import rotation_matrix
+from o3d_terrain.terrain import MAX_SLOPE_DEG, STEEP_LIMIT_SHARE, STEEP_MAX_SLOPE_DEG
+
+
+def _surface_points(rng, u_length, v_length, spacing=0.1):
+    """Points on a (u_length x v_length) m patch spanned by u and v, jittered by 1 cm."""
+    u, v = np.meshgrid(np.arange(0, u_length, spacing), np.arange(0, v_length, spacing))
+    return u.ravel(), v.ravel(), rng.normal(0, 0.01, u.size)
+
+
+def _face(rng, angle_deg, length=20.0, height=6.0):
+    """A face rising at ``angle_deg`` along +x, ``length`` m along y, ``height`` m high."""
+    run = height / math.tan(math.radians(angle_deg)) if angle_deg < 90 else 0.0
+    s, t, e = _surface_points(rng, math.hypot(run, height), length)
+    a = math.radians(angle_deg)
+    return np.column_stack([s * math.cos(a) + e * math.sin(a), t, s * math.sin(a) - e * math.cos(a)])
+
+
+def _run(points, up=(0.0, 0.0, 1.0)):
+    grid = quantize_points(points, cell_size=0.5)
+    return face_run(planar_cells(grid, points), up)[0]
+
+
+def test_the_faces_tilt_sets_the_limit_between_60_and_70_degrees(rng):
+    for angle in (55.0, 62.0, 72.0):
+        p = _face(rng, angle)
+        run, tilt = face_run(planar_cells(quantize_points(p, cell_size=0.5), p), (0, 0, 1))
+        assert run >= FACE_RUN and abs(tilt - angle) < 1.0
+    assert face_limit(55.0) == STEEP_MAX_SLOPE_DEG
+    assert face_limit(62.0) == 67.0
+    assert face_limit(72.0) == FACE_MAX_LIMIT_DEG
+
+
+def test_a_long_steep_plane_is_a_face_and_a_wall_or_level_ground_is_not(rng):
+    assert _run(_face(rng, 60.0)) >= FACE_RUN
+    assert _run(_face(rng, 70.0)) >= FACE_RUN
+    assert _run(_face(rng, 90.0)) == 0.0  # a wall
+    assert _run(_face(rng, 30.0)) == 0.0  # a slope the default limit takes
+    assert _run(_face(rng, 60.0, length=4.0)) < FACE_RUN  # a short one: a windscreen's size
+    # rough ground (a hedge, a bush) is not planar
+    rough = np.column_stack([rng.uniform(0, 20, 40_000), rng.uniform(0, 3, 40_000),
+                             rng.uniform(0, 2, 40_000)])
+    assert _run(rough) == 0.0
+
+
+def test_the_tilt_is_measured_from_the_ground_normal_given(rng):
+    # a wall and its ground, seen by a sensor pitched 25 degrees: the wall leans 65 degrees
+    # in the cloud's frame, but stands at 90 degrees on the ground's normal
+    wall = _face(rng, 90.0)
+    gx, gy, ge = _surface_points(rng, 10.0, 20.0)
+    ground = np.column_stack([-gx - 0.3, gy, ge])
+    turn = rotation_matrix(pitch_deg=25.0)
+    p = np.vstack([wall, ground]) @ turn.T
+    up = turn @ np.array([0.0, 0.0, 1.0])
+    assert _run(p, up) == 0.0
+    assert _run(p) >= FACE_RUN  # measured from the cloud's z the wall would pass for a face
+
+
+def test_face_cells_of_an_empty_or_flat_grid(rng):
+    flat = np.column_stack([rng.uniform(0, 10, 5000), rng.uniform(0, 10, 5000),
+                            np.zeros(5000)])
+    grid = quantize_points(flat, cell_size=0.5)
+    faces = planar_cells(grid, flat)
+    assert faces.cells.size == 0 and face_run(faces, (0, 0, 1))[0] == 0.0
+
+
+@pytest.fixture(scope="module")
+def pit():
+    """Four 6 m benches with 55-degree faces and 8 m berms ahead of a lidar on the pit floor,
+    with the default obstacles: the berms above the sensor are not seen, so the surface the
+    45-degree prior lets through stays flat and the relief share is 0."""
+    run = 6.0 / math.tan(math.radians(55.0))
+    features = (Plane(),) + tuple(Ramp(10 + k * (run + 8), 0, 0, 55.0, run) for k in range(4))
+    scene = Scene("pit55", features, default_obstacles(0), region=(-30, 60, -30, 30))
+    cloud = sample_lidar(scene, beams=32, azimuth_steps=900, fov_deg=(-24.8, 2.0), seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
+    return p[keep], ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
+
+
+def test_a_pits_bench_faces_raise_the_automatic_limit(pit):
+    p, ground = pit
+    stage = RationalBSplineTerrain()
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+    # the relief rule does not see the benches: the 45-degree surface stays flat ...
+    at_limit = RationalBSplineTerrain(max_slope_deg=MAX_SLOPE_DEG).fit(grid, p)
+    assert steep_share(at_limit.robust_surface, grid) < STEEP_LIMIT_SHARE
+    fit = stage.fit(grid, p)
+    assert fit.face_run >= FACE_RUN  # ... their faces do
+    assert fit.max_slope_deg == STEEP_MAX_SLOPE_DEG
+    # the automatic limit labels as the fixed one it chose, and finds the faces' ground
+    _, auto = segment_terrain(p)
+    _, fixed = segment_terrain(p, max_slope_deg=STEEP_MAX_SLOPE_DEG)
+    np.testing.assert_array_equal(auto, fixed)
+    _, at_45 = segment_terrain(p, max_slope_deg=MAX_SLOPE_DEG)
+    found = np.zeros(len(p), bool)
+    found[auto] = True
+    found_45 = np.zeros(len(p), bool)
+    found_45[at_45] = True
+    assert found[ground].mean() > found_45[ground].mean() + 0.05
+    # a limit the user gives is kept
+    given = RationalBSplineTerrain(max_slope_deg=45.0).fit(grid, p)
+    assert given.max_slope_deg == 45.0 and given.face_run is None
