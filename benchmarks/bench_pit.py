@@ -49,6 +49,31 @@ def pit_scene(angle_deg: float, *, benches: int = 4, height: float = 6.0,
     return Scene(f"pit {angle_deg:g}", features, objects, region=(-40.0, 70.0, -40.0, 40.0))
 
 
+def pit_cloud(angle_deg: float, sensor_height: float):
+    """The pit's scan: positions (N, 3), ground truth (N,) and the object points more than
+    :data:`OBSTACLE_HEIGHT` up (N,); spurious returns and non-finite points dropped."""
+    cloud = sample_lidar(pit_scene(angle_deg), beams=64, azimuth_steps=1800,
+                         fov_deg=(-24.8, 2.0), sensor_height=sensor_height, seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
+    truth = ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
+    tall = ~truth & (cloud.true_height_above_terrain[keep] > OBSTACLE_HEIGHT)
+    return p[keep], truth, tall
+
+
+def pit_frames(angles=(55.0, 65.0, 75.0), heights=(1.8, 4.0)):
+    """The pits as labelled frames (``o3d_terrain.evaluation.datasets.LabelledFrame``, every
+    point scored, ground = a terrain hit) for ``benchmarks/run_all.py``."""
+    from o3d_terrain.evaluation.datasets import LabelledFrame
+
+    for angle in angles:
+        for height in heights:
+            p, truth, tall = pit_cloud(angle, height)
+            yield LabelledFrame(name=f"{angle:g}° faces, sensor {height:g} m up", positions=p,
+                                is_ground=truth, scored=np.ones(len(p), bool), obstacle=tall,
+                                sensor_height=height, source="benchmarks/bench_pit.py")
+
+
 def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> str:
     tp = float(np.sum(ground & truth))
     precision = tp / max(float(ground.sum()), 1.0)
@@ -71,15 +96,8 @@ def main() -> None:
           + " | ".join(columns) + " |")
     print("|---|---:|---:|---:|" + "---|" * len(columns))
     for angle in (float(a) for a in args.angles.split(",")):
-        scene = pit_scene(angle)
         for height in (float(h) for h in args.heights.split(",")):
-            cloud = sample_lidar(scene, beams=64, azimuth_steps=1800, fov_deg=(-24.8, 2.0),
-                                 sensor_height=height, seed=0)
-            p = np.asarray(cloud.positions, dtype=np.float64)
-            keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
-            p = p[keep]
-            truth = ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
-            tall = ~truth & (cloud.true_height_above_terrain[keep] > OBSTACLE_HEIGHT)
+            p, truth, tall = pit_cloud(angle, height)
             cells = []
             for limit in LIMITS:
                 _, inliers = o3d_terrain.segment_terrain(p, max_slope_deg=limit)
