@@ -11,17 +11,15 @@ The faces are seen in the points themselves. A cell of a face holds points on on
 tilted 50-75 degrees from the ground's normal, spread across the cell (not one scan line);
 and a face runs on: its cells join into a run tens of metres long. What else stands that
 steep is short or not planar: a wall or a car's side is vertical (90 degrees), a windscreen
-or a bonnet covers a few cells, a hedge or a bush is rough. Measured (docs/algorithm.md,
-"Bench faces"): on the recorded SemanticKITTI frames, at 64 lines and thinned to 16, the
-longest run of such cells is at most 1.8 m; on the synthetic scenes 2.7 m; on the
-``dem.tif`` sites at their own relief at most 4.7 m; on four 6 m benches of 55-75 degrees
-ahead of a lidar on the pit floor 34-77 m.
+or a bonnet covers a few cells, a hedge or a bush is rough. Measured in docs/algorithm.md,
+"Bench faces" (the recorded SemanticKITTI frames, the synthetic scenes, the ``dem.tif`` sites
+and a pit's benches).
 
-:func:`planar_cells` finds the cells (once per scan, from the points), :func:`face_run`
-measures their longest run against a ground normal (the stage asks it with the coarse
-surface's median normal, :func:`o3d_terrain.refine.relief`, so that a tilted sensor's
-walls stay walls). The stage RationalBSplineTerrain raises the automatic slope limit when the
-run reaches :data:`FACE_RUN`.
+:func:`planar_cells` finds the cells, :func:`face_run` measures their longest run against a
+ground normal: the stage RationalBSplineTerrain gives the normal of the ground plane around
+the sensor (:func:`o3d_terrain.terrain.sensor_ground_plane`, the plane the terrain prior
+measures slope against on a tilted sensor), so that a tilted sensor's walls stay walls, and
+fits with the limit :func:`face_limit` from the start when the run reaches :data:`FACE_RUN`.
 """
 
 from __future__ import annotations

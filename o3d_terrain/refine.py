@@ -41,7 +41,7 @@ from .spline import GridBasis, TerrainSurface, clamped_knots
 from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
-__all__ = ["refine_surface", "refit_layout", "steep_share", "relief", "REFINE_MIN_CELLS",
+__all__ = ["refine_surface", "refit_layout", "steep_share", "REFINE_MIN_CELLS",
            "REFINE_MAX_CONTROL_POINTS", "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE",
            "STEEP_SLOPE_DEG"]
 
@@ -122,40 +122,26 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     return refined, int(cells.size)
 
 
-def _cell_normals(surface: TerrainSurface, grid: HeightGrid) -> np.ndarray:
-    """Upward unit normals of ``surface`` at the centres of ``grid``'s measured cells (at
-    most :data:`STEEP_SAMPLE` of them, evenly picked; (0, 3) with none defined)."""
-    cells = np.flatnonzero((grid.state == MEASURED).ravel())
-    if cells.size == 0:
-        return np.zeros((0, 3))
-    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_SAMPLE)], grid.state.shape[1])
-    gx, gy = surface.gradient(grid.x_centers[ix], grid.y_centers[iy])
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    normals = np.column_stack([-gx[ok], -gy[ok], np.ones(int(ok.sum()))])
-    return normals / np.linalg.norm(normals, axis=1, keepdims=True)
-
-
-def relief(surface: TerrainSurface, grid: HeightGrid,
-           slope_deg: float = STEEP_SLOPE_DEG) -> tuple[float, np.ndarray]:
-    """``(share, normal)``: :func:`steep_share` and the median of the normals it compares
-    with, as a unit vector (the ground's normal in the cloud's frame, tilted with the
-    sensor; (0, 0, 1) with no measured cell)."""
-    normals = _cell_normals(surface, grid)
-    if normals.shape[0] == 0:
-        return 0.0, np.array([0.0, 0.0, 1.0])
-    median = np.median(normals, axis=0)
-    median /= np.linalg.norm(median)
-    return float(np.mean(normals @ median < np.cos(np.radians(slope_deg)))), median
-
-
 def steep_share(surface: TerrainSurface, grid: HeightGrid,
                 slope_deg: float = STEEP_SLOPE_DEG) -> float:
     """The share of ``grid``'s measured cells (at most :data:`STEEP_SAMPLE` of them,
     evenly picked) at whose centre the normal of ``surface`` turns more than ``slope_deg``
     from the median of those normals: ground whose slope changes. A uniform tilt (a sensor
     pitched over a level street) scores 0 however steep it makes the ground in the cloud's
-    frame; 0 with no measured cell. With the median normal: :func:`relief`."""
-    return relief(surface, grid, slope_deg)[0]
+    frame; 0 with no measured cell."""
+    cells = np.flatnonzero((grid.state == MEASURED).ravel())
+    if cells.size == 0:
+        return 0.0
+    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_SAMPLE)], grid.state.shape[1])
+    gx, gy = surface.gradient(grid.x_centers[ix], grid.y_centers[iy])
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    if not ok.any():
+        return 0.0
+    normals = np.column_stack([-gx[ok], -gy[ok], np.ones(int(ok.sum()))])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    median = np.median(normals, axis=0)
+    median /= np.linalg.norm(median)
+    return float(np.mean(normals @ median < np.cos(np.radians(slope_deg))))
 
 
 def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,

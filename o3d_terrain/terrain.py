@@ -135,8 +135,8 @@ class TerrainFit:
     # the stage needed neither (a top-down scan; a limit given and no automatic refit layout)
     relief_share: float | None = None
     # RationalBSplineTerrain: the longest run of bench-face cells (m, o3d_terrain.faces.face_run)
-    # measured against the last coarse layout's ground normal when the relief share alone did
-    # not raise the automatic slope limit; None when it was not measured
+    # measured against the ground plane around the sensor before the fit; None when it was not
+    # asked for (a limit given, no prior, a top-down scan)
     face_run: float | None = None
 
 

@@ -16,7 +16,6 @@ from ..refine import (
     STEEP_REFINE_MAX_CONTROL_POINTS,
     STEEP_SHARE,
     refine_surface,
-    relief,
     steep_share,
 )
 from ..segment import (
@@ -41,6 +40,7 @@ from ..terrain import (
     TerrainFit,
     default_control_points,
     fit_grid_detailed,
+    sensor_ground_plane,
 )
 from .base import Stage, stage
 
@@ -97,10 +97,11 @@ class RationalBSplineTerrain(Stage):
         help="terrain_prior: steepest terrain the prior accepts; null = 45, or 60 on a "
              "vehicle's scan of strong relief (slopes that change, not a tilt: "
              "o3d_terrain.refine.steep_share of the coarse layouts' surface at least 0.35), "
-             "or the faces' tilt + 5 (60 to 70) on a vehicle's scan of a bench face (planar "
-             "cells 50-75 deg from the ground in a run of 10 m or more: o3d_terrain.faces), "
-             "where the fit then starts again; give it for faces that are terrain to you and "
-             "steeper than that (docs/algorithm.md, 'Steep slopes and faces', 'Bench faces')")
+             "where the fit then starts again, or the faces' tilt + 5 (60 to 70) on a "
+             "vehicle's scan of a bench face (planar cells 50-75 deg from the ground around "
+             "the sensor in a run of 10 m or more: o3d_terrain.faces); give it for faces that "
+             "are terrain to you and steeper than that (docs/algorithm.md, 'Steep slopes and "
+             "faces', 'Bench faces')")
     gap_slope_deg: float = option(20.0, unit="deg", rule=Range(0, 89),
                                   help="terrain_prior: slope of the cone that crosses empty cells")
     max_obstacle_width: float = option(40.0, unit="m", rule=POSITIVE,
@@ -200,44 +201,34 @@ class RationalBSplineTerrain(Stage):
         refit = self.refine and robust and range_noise is None
         auto_slope = self.max_slope_deg is None and self.terrain_prior
         vehicle = robust and not top_down
-        # a vehicle's scan of relief: on strong relief, seen by the coarse layouts already, or
-        # with a long bench face in its points, the prior's automatic slope limit rises and the
-        # fit starts again; on steep relief the refit's automatic layout grows
-        # (docs/algorithm.md, "A steeper slope limit on strong relief", "Bench faces", "A finer
-        # refit on steep relief")
+        # a vehicle's scan of relief: with a long bench face in its points the prior's
+        # automatic slope limit is the faces' own from the start; on strong relief, seen by the
+        # coarse layouts already, it rises and the fit starts again; on steep relief the
+        # refit's automatic layout grows (docs/algorithm.md, "Bench faces", "A steeper slope
+        # limit on strong relief", "A finer refit on steep relief")
+        run = None
+        if vehicle and auto_slope:
+            gx, gy = sensor_ground_plane(grid, self.sensor_origin)
+            run, tilt = face_run(planar_cells(grid, positions), (-gx, -gy, 1.0))
+            if run >= FACE_RUN:
+                options["max_slope_deg"] = face_limit(tilt)
         coarse_share = []
-        runs = []
-        limit = [STEEP_MAX_SLOPE_DEG]
-        faces = planar_cells(grid, positions) if vehicle and auto_slope else None
 
         def strong_relief(coarse: TerrainSurface) -> bool:
-            share, up = relief(coarse, grid)
-            coarse_share.append(share)
-            if share >= STEEP_LIMIT_SHARE:
-                return True
-            if faces is None or faces.cells.size == 0:
-                return False
-            run, tilt = face_run(faces, up)  # the faces' tilt from the ground the fit sees
-            runs.append(run)
-            if run < FACE_RUN:
-                return False
-            limit[0] = face_limit(tilt)  # the faces' own steepness, 60 to 70 degrees
-            return True
+            coarse_share.append(steep_share(coarse, grid))
+            return coarse_share[-1] >= STEEP_LIMIT_SHARE
 
-        fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief
-                                if vehicle and auto_slope else None)
+        rises = vehicle and auto_slope and options["max_slope_deg"] < STEEP_MAX_SLOPE_DEG
+        fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief if rises
+                                else None)
         share = coarse_share[-1] if coarse_share else None
-        raised = fit is None
-        if raised:
-            fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=limit[0]))
-        if vehicle and refit and self.control_points is None and not (
-                raised and share >= STEEP_LIMIT_SHARE):
-            # the refit's layout: the final surface's share (a coarse share that raised the
-            # limit is steep already; a bench face raises it on a surface that was flat)
-            share = steep_share(fit.surface, grid)
+        if fit is None:
+            fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
+        elif vehicle and refit and self.control_points is None:
+            share = steep_share(fit.surface, grid)  # the refit's layout: the final surface's
         steep = share is not None and share >= STEEP_SHARE
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
-        fit = dataclasses.replace(fit, relief_share=share, face_run=runs[-1] if runs else None)
+        fit = dataclasses.replace(fit, relief_share=share, face_run=run)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
         # an automatic layout may grow for the refit's one solve (o3d_terrain.refine), more
