@@ -184,9 +184,12 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     of strong relief (slopes that change, not a tilt: :func:`o3d_terrain.refine.steep_share`
     of the robust fit's coarse layouts at least :data:`o3d_terrain.terrain.STEEP_LIMIT_SHARE`),
     where the fit then starts again (docs/algorithm.md, "A steeper slope limit on strong
-    relief"). Give it (e.g. 60-75) for
-    the bench faces of pits and cuttings; on street scenes a higher limit connects the walls
-    of cars and buildings to the ground (docs/algorithm.md, "Steep slopes and faces").
+    relief"), or the faces' tilt + 5, 60 to 70, on a vehicle's scan of a bench face (planar
+    cells 50-75 deg from the ground around the sensor in a run of 10 m or more,
+    :mod:`o3d_terrain.faces`; docs/algorithm.md, "Bench faces"). Give it (e.g. 60-75) for
+    shorter or steeper faces and on airborne tiles; on street scenes a higher limit connects
+    the walls of cars and buildings to the ground (docs/algorithm.md, "Steep slopes and
+    faces").
     range_noise: the sensor's range-dependent noise, a :class:`~o3d_terrain.noise.RangeNoise`
     (e.g. ``RangeNoise.from_stereo(focal_px=..., baseline=..., disparity_noise_px=...)``) or
     its coefficient in 1/m with ``sensor_origin`` (cloud coordinates); None = none (lidar).
