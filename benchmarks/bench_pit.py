@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 
 import o3d_terrain
+from o3d_terrain.evaluation.metrics import segmentation_counts
 from o3d_terrain.evaluation.peers import make_peer
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
@@ -75,11 +76,9 @@ def pit_frames(angles=(55.0, 65.0, 75.0), heights=(1.8, 4.0)):
 
 
 def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> str:
-    tp = float(np.sum(ground & truth))
-    precision = tp / max(float(ground.sum()), 1.0)
-    recall = tp / max(float(truth.sum()), 1.0)
-    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
-    return f"{f1:.4f} / {float(np.mean(~ground[tall])):.3f}"
+    """Ground F1 / obstacle recall of the ground mask ``ground``."""
+    counts = segmentation_counts(ground, truth, obstacle=tall)
+    return f"{counts.f1:.4f} / {counts.obstacle_recall:.3f}"
 
 
 def main() -> None:

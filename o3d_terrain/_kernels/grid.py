@@ -490,7 +490,6 @@ def finite_bounds(x, y, z):
     return x_min, x_max, y_min, y_max, n
 
 
-
 @numba.njit(cache=True)
 def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
     """Per slot (``slot``: flat cell index -> slot, -1 for cells not wanted; ``count`` slots)
@@ -500,12 +499,10 @@ def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
     NaN for slots with fewer than 3 points. One pass over the points, the sums taken about
     the cell's centre and ``base[c]`` (a height in the cell, e.g. its lowest) so that they
     stay small; non-finite points and points outside the grid are skipped."""
-    n_points = positions.shape[0]
-    cells = np.empty(n_points, np.int32)
-    for k in range(n_points):  # in a loop of its own, as quantize's (vectorised)
-        cells[k] = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+    # the cells in a loop of their own, as quantize finds them (vectorised)
+    cells = cell_indices(positions[:, 0], positions[:, 1], x_min, y_min, cell_size, nx, ny)
     sums = np.zeros((count, 10))  # n, x, y, z, xx, xy, xz, yy, yz, zz
-    for k in range(n_points):
+    for k in range(positions.shape[0]):
         c = cells[k]
         if c < 0 or slot[c] < 0:
             continue
@@ -578,15 +575,14 @@ def _eigenvector(a, value, out):
     """Unit eigenvector of the symmetric 3 x 3 matrix ``a`` for its least eigenvalue
     ``value`` into ``out``: the largest cross product of two rows of a - value I; False when
     every cross product vanishes (a repeated least eigenvalue: no single direction)."""
+    m = a.copy()
+    for i in range(3):
+        m[i, i] -= value
     best = 0.0
     for i, j in ((0, 1), (0, 2), (1, 2)):
-        ui = (a[i, 0] - (value if i == 0 else 0.0), a[i, 1] - (value if i == 1 else 0.0),
-              a[i, 2] - (value if i == 2 else 0.0))
-        uj = (a[j, 0] - (value if j == 0 else 0.0), a[j, 1] - (value if j == 1 else 0.0),
-              a[j, 2] - (value if j == 2 else 0.0))
-        cx = ui[1] * uj[2] - ui[2] * uj[1]
-        cy = ui[2] * uj[0] - ui[0] * uj[2]
-        cz = ui[0] * uj[1] - ui[1] * uj[0]
+        cx = m[i, 1] * m[j, 2] - m[i, 2] * m[j, 1]
+        cy = m[i, 2] * m[j, 0] - m[i, 0] * m[j, 2]
+        cz = m[i, 0] * m[j, 1] - m[i, 1] * m[j, 0]
         norm = cx * cx + cy * cy + cz * cz
         if norm > best:
             best = norm

@@ -218,8 +218,9 @@ class RationalBSplineTerrain(Stage):
             coarse_share.append(steep_share(coarse, grid))
             return coarse_share[-1] >= STEEP_LIMIT_SHARE
 
-        rises = vehicle and auto_slope and options["max_slope_deg"] < STEEP_MAX_SLOPE_DEG
-        fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief if rises
+        # the relief rule decides where no face did
+        relief_rule = run is not None and run < FACE_RUN
+        fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief if relief_rule
                                 else None)
         share = coarse_share[-1] if coarse_share else None
         if fit is None:
