@@ -3,14 +3,20 @@ limits (and, with --peers, the peers of the bench extra) on a synthetic pit (pri
 Markdown, no assertions).
 
 The pit: four benches rising along +x from x = 10 m, 6 m faces of 45-75 degrees with 8 m
-berms between them (``synthetic.Ramp`` features), a 64-line lidar on the pit floor at the
-origin, 1.8 m (a pickup) or 4 m (a haul truck's cab) above it; a pole, a pedestrian, a car, a
-rock and a truck stand on the floor. Ground is every point not on an object; obstacle recall
-counts the points of objects more than 0.3 m above the ground. The lidar sees the lower part
-of the first face and the floor; the berms above it are hidden, so the faces are the only
-relief in the scan (docs/algorithm.md, "Bench faces").
+berms between them (``synthetic.Ramp`` features), a 64-line lidar 1.8 m (a pickup) or 4 m (a
+haul truck's cab) above the ground it stands on; a pole, a pedestrian, a car, a rock and a
+truck stand on the pit floor. Ground is every point not on an object; obstacle recall counts
+the points of objects more than 0.3 m above the ground.
 
-Run: .venv/bin/python benchmarks/bench_pit.py [--angles 55,65,75] [--heights 1.8,4] [--peers]
+Where the vehicle stands (``--places``): ``floor``, on the pit floor at the origin, where the
+lidar sees the lower part of the first face and the floor, the berms above it hidden, so the
+faces are the only relief in the scan; ``berm1`` / ``berm2``, in the middle of the first or
+second berm, 4 m from the face above it and 4 m from the edge of the face below, where the
+lidar sees that face from close up (not its top), the berm to its sides and, below, the
+benches and the floor with the objects (docs/algorithm.md, "Bench faces").
+
+Run: .venv/bin/python benchmarks/bench_pit.py [--angles 55,65,75] [--heights 1.8,4]
+     [--places floor,berm1,berm2] [--peers]
 """
 
 from __future__ import annotations
@@ -37,24 +43,43 @@ PLACES = {"pole": (5.0, 6.0), "pedestrian": (4.0, -3.0), "car": (-8.0, 5.0), "ro
           "truck": (0.0, 14.0)}
 LIMITS = (None, 45.0, 60.0, 65.0, 70.0, 75.0)
 OBSTACLE_HEIGHT = 0.3
+FIRST_FACE = 10.0  # x (m) where the first face rises from the floor
+FACE_HEIGHT = 6.0
+BERM = 8.0
+#: where the vehicle stands: the pit floor at the origin, or the middle of berm k
+PLACES_OF_SENSOR = ("floor", "berm1", "berm2")
 
 
-def pit_scene(angle_deg: float, *, benches: int = 4, height: float = 6.0,
-              berm: float = 8.0) -> Scene:
+def pit_scene(angle_deg: float, *, benches: int = 4, height: float = FACE_HEIGHT,
+              berm: float = BERM) -> Scene:
     """Benches of ``height`` m faces at ``angle_deg`` and ``berm`` m berms from x = 10 m."""
     run = height / math.tan(math.radians(angle_deg))
-    features = (Plane(),) + tuple(Ramp(10.0 + k * (run + berm), 0.0, 0.0, angle_deg, run)
+    features = (Plane(),) + tuple(Ramp(FIRST_FACE + k * (run + berm), 0.0, 0.0, angle_deg, run)
                                   for k in range(benches))
     objects = tuple(Obstacle(o.kind, PLACES[o.kind], o.size, o.height, o.yaw_deg)
                     for o in default_obstacles(0))
     return Scene(f"pit {angle_deg:g}", features, objects, region=(-40.0, 70.0, -40.0, 40.0))
 
 
-def pit_cloud(angle_deg: float, sensor_height: float):
-    """The pit's scan: positions (N, 3), ground truth (N,) and the object points more than
-    :data:`OBSTACLE_HEIGHT` up (N,); spurious returns and non-finite points dropped."""
-    cloud = sample_lidar(pit_scene(angle_deg), beams=64, azimuth_steps=1800,
-                         fov_deg=(-24.8, 2.0), sensor_height=sensor_height, seed=0)
+def sensor_xy(angle_deg: float, place: str) -> tuple[float, float]:
+    """Where the vehicle stands (x, y): ``floor`` (the origin) or ``berm<k>``, the middle of
+    the k-th berm."""
+    if place == "floor":
+        return (0.0, 0.0)
+    if not place.startswith("berm") or not place[4:].isdigit() or int(place[4:]) < 1:
+        raise ValueError(f"place must be 'floor' or 'berm<k>' (k >= 1), got {place!r}")
+    k = int(place[4:])
+    run = FACE_HEIGHT / math.tan(math.radians(angle_deg))
+    return (FIRST_FACE + k * run + (k - 1) * BERM + BERM / 2, 0.0)
+
+
+def pit_cloud(angle_deg: float, sensor_height: float, place: str = "floor"):
+    """The pit's scan from ``place`` (:func:`sensor_xy`), in the sensor's frame: positions
+    (N, 3), ground truth (N,) and the object points more than :data:`OBSTACLE_HEIGHT` up (N,);
+    spurious returns and non-finite points dropped."""
+    cloud = sample_lidar(pit_scene(angle_deg), sensor_xy=sensor_xy(angle_deg, place), beams=64,
+                         azimuth_steps=1800, fov_deg=(-24.8, 2.0), sensor_height=sensor_height,
+                         seed=0)
     p = np.asarray(cloud.positions, dtype=np.float64)
     keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
     truth = ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
@@ -62,17 +87,24 @@ def pit_cloud(angle_deg: float, sensor_height: float):
     return p[keep], truth, tall
 
 
-def pit_frames(angles=(55.0, 65.0, 75.0), heights=(1.8, 4.0)):
+def place_name(place: str) -> str:
+    return "floor" if place == "floor" else f"berm {place[4:]}"
+
+
+def pit_frames(angles=(55.0, 65.0, 75.0), heights=(1.8, 4.0), places=("floor", "berm1")):
     """The pits as labelled frames (``o3d_terrain.evaluation.datasets.LabelledFrame``, every
     point scored, ground = a terrain hit) for ``benchmarks/run_all.py``."""
     from o3d_terrain.evaluation.datasets import LabelledFrame
 
-    for angle in angles:
-        for height in heights:
-            p, truth, tall = pit_cloud(angle, height)
-            yield LabelledFrame(name=f"{angle:g}° faces, sensor {height:g} m up", positions=p,
-                                is_ground=truth, scored=np.ones(len(p), bool), obstacle=tall,
-                                sensor_height=height, source="benchmarks/bench_pit.py")
+    for place in places:
+        for angle in angles:
+            for height in heights:
+                p, truth, tall = pit_cloud(angle, height, place)
+                on = "the floor" if place == "floor" else place_name(place)
+                yield LabelledFrame(name=f"{angle:g}° faces, sensor {height:g} m up on {on}",
+                                    positions=p, is_ground=truth,
+                                    scored=np.ones(len(p), bool), obstacle=tall,
+                                    sensor_height=height, source="benchmarks/bench_pit.py")
 
 
 def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> str:
@@ -85,33 +117,38 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--angles", default="45,55,65,75", help="face angles (deg)")
     parser.add_argument("--heights", default="1.8,4", help="sensor heights above the floor (m)")
+    parser.add_argument("--places", default="floor,berm1",
+                        help="where the vehicle stands: floor, berm1, berm2, ...")
     parser.add_argument("--peers", action="store_true",
                         help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
     args = parser.parse_args()
     peers = ["patchworkpp", "csf", "smrf", "ransac_plane"] if args.peers else []
     columns = ["automatic" if v is None else f"{v:g}°" for v in LIMITS] + peers
     print("ground F1 / obstacle recall; `segment_terrain` with `max_slope_deg` automatic or fixed")
-    print("| faces | sensor height (m) | points | limit chosen (face run, m) | "
+    print("| sensor on | faces | sensor height (m) | points | limit chosen (face run, m) | "
           + " | ".join(columns) + " |")
-    print("|---|---:|---:|---:|" + "---|" * len(columns))
-    for angle in (float(a) for a in args.angles.split(",")):
-        for height in (float(h) for h in args.heights.split(",")):
-            p, truth, tall = pit_cloud(angle, height)
-            cells = []
-            for limit in LIMITS:
-                _, inliers = o3d_terrain.segment_terrain(p, max_slope_deg=limit)
-                ground = np.zeros(len(p), bool)
-                ground[inliers] = True
-                cells.append(score(ground, truth, tall))
-            for name in peers:
-                ground = np.asarray(make_peer(name, sensor_height=height).segment(p), bool)
-                cells.append(score(ground, truth, tall))
-            frame = o3d_terrain.stages.RationalBSplineTerrain()(
-                o3d_terrain.stages.GridQuantize()(p))
-            fit = frame.product("terrain_fit")
-            run = "-" if fit.face_run is None else f"{fit.face_run:.1f}"
-            print(f"| {angle:g}° | {height:g} | {len(p):,} | {fit.max_slope_deg:.1f}° ({run}) | "
-                  + " | ".join(cells) + " |", flush=True)
+    print("|---|---|---:|---:|---:|" + "---|" * len(columns))
+    for angle, place, height in ((float(a), place, float(h))
+                                 for place in args.places.split(",")
+                                 for a in args.angles.split(",")
+                                 for h in args.heights.split(",")):
+        p, truth, tall = pit_cloud(angle, height, place)
+        cells = []
+        for limit in LIMITS:
+            _, inliers = o3d_terrain.segment_terrain(p, max_slope_deg=limit)
+            ground = np.zeros(len(p), bool)
+            ground[inliers] = True
+            cells.append(score(ground, truth, tall))
+        for name in peers:
+            ground = np.asarray(make_peer(name, sensor_height=height).segment(p), bool)
+            cells.append(score(ground, truth, tall))
+        frame = o3d_terrain.stages.RationalBSplineTerrain()(
+            o3d_terrain.stages.GridQuantize()(p))
+        fit = frame.product("terrain_fit")
+        run = "-" if fit.face_run is None else f"{fit.face_run:.1f}"
+        print(f"| {place_name(place)} | {angle:g}° | {height:g} | {len(p):,} | "
+              f"{fit.max_slope_deg:.1f}° ({run}) | "
+              + " | ".join(cells) + " |", flush=True)
 
 
 if __name__ == "__main__":

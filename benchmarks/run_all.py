@@ -15,7 +15,8 @@ Data: the real scans in ../shared/data (or $O3D_TERRAIN_DATA) and the synthetic 
 32- or 16-line lidar sees; ``synthetic-solid`` the synthetic scenes seen by a forward-looking
 solid-state lidar with a non-repetitive scan (``synthetic.sample_solid_state``);
 ``dem-sites`` the 8 sites of the real raster ``dem_1m/dem.tif`` of benchmarks/bench_dem_sites.py
-(DEM_SENSORS); ``pit`` an open pit's benches seen from its floor (benchmarks/bench_pit.py).
+(DEM_SENSORS); ``pit`` an open pit's benches seen from its floor and from a berm
+(benchmarks/bench_pit.py).
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ def load_frames(spec: str, seed: int = 0):
         from bench_dem_sites import site_frames
 
         return list(site_frames(spec.split(":", 1)[1])), []
-    if spec == "pit":  # an open pit's benches seen from its floor
+    if spec == "pit":  # an open pit's benches seen from its floor and from the first berm
         from bench_pit import pit_frames
 
         return list(pit_frames()), []
@@ -1096,16 +1097,18 @@ def render(results: dict, figures: Path | None = None) -> str:
                 "cloud levelled with the IMU's up and at twice the relief (docs/algorithm.md, "
                 "\"Real terrain under synthetic sensors\").", ""]
     out += _per_frame_table(results, "pit", "An open pit's benches (four 6 m faces, 8 m berms, a "
-                            "64-line lidar on the pit floor)")
+                            "64-line lidar on the pit floor or on the first berm)")
     out += _per_frame_table(results, "pit", "An open pit's benches: obstacle recall",
                             key="obstacle_recall", label="Obstacle recall (%)")
     if "pit/" + OURS in results["segment"]:
         out += ["The pit: `benchmarks/bench_pit.py` (faces of 55°, 65° and 75°; a pole, a "
                 "pedestrian, a car, a rock and a truck on the floor; ground = every point not "
                 "on an object). The sensor on the floor does not see the berms above it: the "
-                "faces are the scan's only relief. Our slope limit rises to the faces' tilt + "
-                "5°, 60-70°, by itself (docs/algorithm.md, \"Bench faces\"); that script "
-                "also scores fixed limits.", ""]
+                "faces are the scan's only relief. On the first berm it stands 4 m from the "
+                "face above it, whose top it does not see, and looks down on the floor and its "
+                "objects. Our slope limit rises to the faces' tilt + 5°, 60-70°, by itself "
+                "(docs/algorithm.md, \"Bench faces\"); that script also scores fixed limits "
+                "and the second berm.", ""]
     out += ["## Speed at the standard sizes", "", *_speed_table(results)]
     for dataset, title in (("lidar120k", "Synthetic lidar frame: accuracy"),
                            ("stereo300k", "Synthetic stereo cloud: accuracy"),

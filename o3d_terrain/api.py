@@ -203,7 +203,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     points alone (:func:`o3d_terrain.refine.refine_surface`; docs/algorithm.md, "Refit on the
     terrain points"); False = the robust loop's surface, about 30 % sooner on a 120k-point
     lidar frame. ``sensor_origin`` (cloud coordinates) is where those labels measure range
-    from.
+    from; the ground plane around it (the ground the vehicle stands on) seeds the prior and,
+    on a tilted sensor, gives it level.
     knots: "auto" (default) = "adaptive" on a vehicle's scan, "uniform" on a top-down scan
     (no points near ``sensor_origin``); "adaptive" = knot spans narrower where the grid has
     more measured cells and wider where it has few, when the layout's uniform spacing is

@@ -100,6 +100,12 @@ PRIOR_LEVEL_MIN_TILT_DEG = 5.0
 #: the measured cells within this radius (m) of the sensor, at least this many cells
 PRIOR_LEVEL_RADIUS = 15.0
 PRIOR_LEVEL_MIN_CELLS = 50
+#: ... leaving out the cells whose own slope lies more than this (deg) from the plane: a face
+#: or an object's side in the radius, not the ground under the sensor (a bench face 4 m
+#: ahead of a vehicle on a berm tilted the plane by 17 degrees; docs/algorithm.md, "Bench
+#: faces")
+PRIOR_LEVEL_MAX_SLOPE_DEG = 50.0
+PRIOR_LEVEL_ROUNDS = 3
 
 
 @dataclass(frozen=True)
@@ -241,8 +247,9 @@ def fit_grid_detailed(
         coordinates, or None. When the ground within PRIOR_LEVEL_RADIUS of it tilts by more
         than PRIOR_LEVEL_MIN_TILT_DEG (a pitched or rolled sensor, the cloud in its frame),
         the prior's connectivity measures slope against that ground's plane
-        (:func:`sensor_ground_plane`); its compact test does not. None = the grid's z is
-        level.
+        (:func:`sensor_ground_plane`); its compact test does not. The cells on that plane
+        seed the connectivity (:func:`_sensor_seeds`: a vehicle stands on terrain). None =
+        the grid's z is level, no seeds of the sensor's.
     knots: (robust) "uniform" spans, or "adaptive": spans narrower where the grid has more
         measured cells and wider where it has few, when the layout's uniform spacing is
         coarse for the grid (:func:`knot_densities`; the stage's default on a vehicle's
@@ -316,9 +323,11 @@ def fit_grid_detailed(
         prior = None
         compact = np.zeros((0, 0), bool)
         if terrain_prior:
+            ground = None if sensor_origin is None else _sensor_ground(grid, sensor_origin)
             connected, compact = _terrain_prior(
                 grid, max_slope_deg, gap_slope_deg, max_obstacle_width, 3.0 * noise_floor,
-                _level_plane(grid, sensor_origin))
+                _level_plane(grid, sensor_origin, ground),
+                _sensor_seeds(grid, sensor_origin, ground, 3.0 * noise_floor))
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow),
             # that rise measured to compact neighbours only: a wall or a bush face next to
@@ -414,33 +423,75 @@ def sensor_ground_plane(grid: HeightGrid, sensor_origin: Sequence[float], *,
                         min_cells: int = PRIOR_LEVEL_MIN_CELLS) -> tuple[float, float]:
     """Gradient (dz/dx, dz/dy) of the ground plane around the sensor: a least-squares plane
     through the lowest points of the measured cells within ``radius`` m (x/y) of
-    ``sensor_origin``, refitted three times without the cells more than twice the robust
-    spread (plus 5 cm) above it (objects). (0, 0) with fewer than ``min_cells`` cells there
-    (an airborne tile's sensor outside the grid)."""
+    ``sensor_origin``, without the cells whose own slope (differences of the lowest points
+    with the neighbours') lies more than PRIOR_LEVEL_MAX_SLOPE_DEG from the plane (faces,
+    objects' sides; measured from level for the first fit, from the plane before for the
+    next), refitted PRIOR_LEVEL_ROUNDS - 1 times, also without the cells more than twice the
+    robust spread (plus 5 cm) above it (objects). (0, 0) with fewer than ``min_cells`` cells
+    there (an airborne tile's sensor outside the grid)."""
+    gx, gy, _ = _sensor_ground(grid, sensor_origin, radius, min_cells)
+    return gx, gy
+
+
+def _sensor_ground(grid: HeightGrid, sensor_origin, radius: float = PRIOR_LEVEL_RADIUS,
+                   min_cells: int = PRIOR_LEVEL_MIN_CELLS) -> tuple[float, float, float]:
+    """(gx, gy, height at the sensor's x/y) of :func:`sensor_ground_plane`; the height is NaN
+    where the plane is not found."""
     low = grid.lowest if grid.lowest is not None else grid.z
-    gx, gy = _ground.ground_plane(
-        np.ascontiguousarray(low, dtype=np.float64), grid.state == MEASURED, grid.x_centers,
+    measured = (grid.state == MEASURED) & np.isfinite(low)
+    gx, gy, height = _ground.ground_plane(
+        np.ascontiguousarray(low, dtype=np.float64), measured, grid.x_centers,
         grid.y_centers, float(sensor_origin[0]), float(sensor_origin[1]), float(radius),
-        int(min_cells), 3)
-    return float(gx), float(gy)
+        math.cos(math.radians(PRIOR_LEVEL_MAX_SLOPE_DEG)), int(min_cells), PRIOR_LEVEL_ROUNDS)
+    return float(gx), float(gy), float(height)
 
 
-def _level_plane(grid: HeightGrid, sensor_origin) -> np.ndarray | None:
+def _level_plane(grid: HeightGrid, sensor_origin, ground=None) -> np.ndarray | None:
     """The plane of :func:`sensor_ground_plane` over the grid's cells (heights relative to
     the sensor's position) when it tilts by more than PRIOR_LEVEL_MIN_TILT_DEG; None
     otherwise or without ``sensor_origin``. The prior's connectivity takes it off the cells'
-    lowest points, so that it measures slope against the ground the sensor stands on."""
+    lowest points, so that it measures slope against the ground the sensor stands on.
+    ``ground``: :func:`_sensor_ground`'s result when already found."""
     if sensor_origin is None:
         return None
-    gx, gy = sensor_ground_plane(grid, sensor_origin)
+    gx, gy, _ = _sensor_ground(grid, sensor_origin) if ground is None else ground
     if math.degrees(math.atan(math.hypot(gx, gy))) <= PRIOR_LEVEL_MIN_TILT_DEG:
         return None
     return gx * (grid.x_centers - float(sensor_origin[0]))[:, None] + \
         gy * (grid.y_centers - float(sensor_origin[1]))[None, :]
 
 
+def _sensor_seeds(grid: HeightGrid, sensor_origin, ground, tolerance: float,
+                  radius: float = PRIOR_LEVEL_RADIUS) -> np.ndarray | None:
+    """The measured cells within ``radius`` of the sensor whose lowest point lies on the
+    ground plane it stands on (:func:`_sensor_ground`): at most ``tolerance`` above it, and
+    below it by at most ``tolerance`` plus the plane's rise across half a cell (a cell's
+    lowest point on a slope). A vehicle stands on terrain, so they seed the prior's
+    connectivity: on a berm or a plateau whose edges the sensor cannot see, the lowest cells
+    around (the floor below) would not reach them. None without a sensor or a plane."""
+    if sensor_origin is None or ground is None or not math.isfinite(ground[2]):
+        return None
+    gx, gy, height = ground
+    low = grid.lowest if grid.lowest is not None else grid.z
+    dx = grid.x_centers - float(sensor_origin[0])
+    dy = grid.y_centers - float(sensor_origin[1])
+    i = np.flatnonzero(np.abs(dx) <= radius)  # the block around the sensor
+    j = np.flatnonzero(np.abs(dy) <= radius)
+    seeds = np.zeros(grid.shape, bool)
+    if i.size == 0 or j.size == 0:
+        return seeds
+    block = np.s_[i[0]:i[-1] + 1, j[0]:j[-1] + 1]
+    dx = dx[block[0]][:, None]
+    dy = dy[block[1]][None, :]
+    off = low[block] - (height + gx * dx + gy * dy)
+    drop = tolerance + 0.5 * grid.cell_size * (abs(gx) + abs(gy))
+    seeds[block] = ((grid.state[block] == MEASURED) & (dx * dx + dy * dy <= radius * radius)
+                    & (off <= tolerance) & (off >= -drop))
+    return seeds
+
+
 def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, tolerance,
-                   plane=None):
+                   plane=None, sensor_seeds=None):
     """(connected, compact) of :func:`terrain_prior_mask`. The fit widens compact cells by
     :func:`o3d_terrain._kernels.ground.compact_rise`, not by the rise
     :func:`o3d_terrain._kernels.ground.compact_cells` tests them with. ``plane``: the ground
@@ -462,6 +513,8 @@ def _terrain_prior(grid, max_slope_deg, gap_slope_deg, max_obstacle_width, toler
     crossed, seeds = _ground.prior_seeds(slope_low, measured, c,
                                          math.tan(math.radians(gap_slope_deg)), step,
                                          float(tolerance), radius)
+    if sensor_seeds is not None:  # the ground the vehicle stands on, where it is no wall
+        seeds |= sensor_seeds & measured & np.isfinite(crossed)
     connected = measured & _ground.connected_terrain(crossed, seeds, c, step, float(tolerance))
     # rise: the terrain's rise across one cell, what points on the terrain may span inside it.
     # Eq. 1 gives Z = max(lowest, mean - sigma), which equals the lowest point for any cell

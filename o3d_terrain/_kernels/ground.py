@@ -370,13 +370,48 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
 
 
 @numba.njit(cache=True)
-def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells, rounds):
-    """(gx, gy) of a least-squares plane z = gx (x - sx) + gy (y - sy) + c through ``low`` of
-    the ``measured`` cells whose centre lies within ``radius`` of (sx, sy), refitted
-    ``rounds`` - 1 more times without the cells more than twice the robust spread (1.4826
-    median absolute residual, plus 0.05) above it; (0, 0) when fewer than ``min_cells`` cells
-    lie there or the cells lie on one line. The cell block searched is the radius' bounding
-    box, not the whole grid."""
+def _difference(low, measured, i, j, di, dj, step):
+    """dz per metre of ``low`` at cell (i, j) along (di, dj): central where both neighbours
+    are measured, else one-sided; NaN where neither is."""
+    nx, ny = low.shape
+    a = i - di >= 0 and j - dj >= 0 and measured[i - di, j - dj]
+    b = i + di < nx and j + dj < ny and measured[i + di, j + dj]
+    if a and b:
+        return (low[i + di, j + dj] - low[i - di, j - dj]) / (2.0 * step)
+    if b:
+        return (low[i + di, j + dj] - low[i, j]) / step
+    if a:
+        return (low[i, j] - low[i - di, j - dj]) / step
+    return np.nan
+
+
+@numba.njit(cache=True)
+def _within_tilt(sx, sy, gx, gy, min_cos):
+    """Whether the slope (sx, sy) of a cell lies within the angle of cosine ``min_cos`` of the
+    plane of gradient (gx, gy); a NaN component counts as the plane's own."""
+    if not math.isfinite(sx):
+        sx = gx
+    if not math.isfinite(sy):
+        sy = gy
+    dot = sx * gx + sy * gy + 1.0
+    return dot >= min_cos * math.sqrt((sx * sx + sy * sy + 1.0) * (gx * gx + gy * gy + 1.0))
+
+
+@numba.njit(cache=True)
+def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cos, min_cells,
+                 rounds):
+    """(gx, gy, c) of a least-squares plane z = gx (x - sx) + gy (y - sy) + c through ``low`` of
+    the ``measured`` cells whose centre lies within ``radius`` of (sx, sy); ``low`` must be
+    finite on every measured cell.
+
+    A cell whose own slope (:func:`_difference` with its neighbours along x and y) lies
+    further from the plane than the angle of cosine ``min_cos`` is left out: a face or an
+    object's side, not the ground (the first fit measures it from level, each next one from
+    the plane before). ``rounds`` fits in all, each after the first also without the cells
+    more than twice the robust spread (1.4826 median absolute residual, plus 0.05) above the
+    plane before (objects). (0, 0, NaN) when fewer than ``min_cells`` cells lie there or the
+    cells lie on one line. The cell block searched is the radius' bounding box, not the whole
+    grid."""
     c = x_centers[1] - x_centers[0] if x_centers.shape[0] > 1 else 1.0
     i0 = max(0, int(math.floor((sx - radius - x_centers[0]) / c)))
     i1 = min(x_centers.shape[0], int(math.ceil((sx + radius - x_centers[0]) / c)) + 1)
@@ -387,23 +422,33 @@ def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells,
     x = np.empty(size)
     y = np.empty(size)
     z = np.empty(size)
+    slope = np.empty((size, 2))  # each cell's own (dz/dx, dz/dy) from its neighbours
     n = 0
     r2 = radius * radius
     for i in range(i0, i1):
         dx = x_centers[i] - sx
         for j in range(j0, j1):
             dy = y_centers[j] - sy
-            if measured[i, j] and math.isfinite(low[i, j]) and dx * dx + dy * dy <= r2:
+            if measured[i, j] and dx * dx + dy * dy <= r2:
                 x[n] = dx
                 y[n] = dy
                 z[n] = low[i, j]
+                slope[n, 0] = _difference(low, measured, i, j, 1, 0, c)
+                slope[n, 1] = _difference(low, measured, i, j, 0, 1, cy)
                 n += 1
     if n < min_cells:
-        return 0.0, 0.0
-    keep = np.ones(n, np.bool_)
+        return 0.0, 0.0, np.nan
+    keep = np.empty(n, np.bool_)
+    kept = 0
+    for k in range(n):
+        keep[k] = _within_tilt(slope[k, 0], slope[k, 1], 0.0, 0.0, min_cos)
+        kept += keep[k]
+    if kept < min_cells:
+        return 0.0, 0.0, np.nan
     residual = np.empty(n)
     gx = 0.0
     gy = 0.0
+    height = np.nan
     for _ in range(rounds):
         sxx = sxy = sx1 = syy = sy1 = s1 = sxz = syz = sz = 0.0
         for k in range(n):
@@ -419,17 +464,19 @@ def ground_plane(low, measured, x_centers, y_centers, sx, sy, radius, min_cells,
                 sz += z[k]
         a = np.array([[sxx, sxy, sx1], [sxy, syy, sy1], [sx1, sy1, s1]])
         if abs(np.linalg.det(a)) < 1e-9 * max(sxx * syy * s1, 1e-300):
-            return 0.0, 0.0
+            return 0.0, 0.0, np.nan
         g = np.linalg.solve(a, np.array([sxz, syz, sz]))
         gx = g[0]
         gy = g[1]
-        kept = 0
+        height = g[2]
         for k in range(n):
             residual[k] = z[k] - (gx * x[k] + gy * y[k] + g[2])
         spread = 1.4826 * np.median(np.abs(residual[keep])) + 0.05
+        kept = 0
         for k in range(n):
-            keep[k] = residual[k] < 2.0 * spread
+            keep[k] = (residual[k] < 2.0 * spread
+                       and _within_tilt(slope[k, 0], slope[k, 1], gx, gy, min_cos))
             kept += keep[k]
         if kept < min_cells:
             break
-    return gx, gy
+    return gx, gy, height

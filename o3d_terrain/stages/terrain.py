@@ -141,8 +141,9 @@ class RationalBSplineTerrain(Stage):
              "disparity_noise_px), else one noise scale for all cells (o3d_terrain.noise)")
     sensor_origin: tuple = option((0.0, 0.0, 0.0), kind=float, length=3, unit="m",
                                   help="sensor position in cloud coordinates, for range_noise, "
-                                       "refine's labels and the terrain prior's level (the "
-                                       "ground around it, when the sensor is tilted)")
+                                       "refine's labels and the terrain prior (the ground "
+                                       "around it gives level when the sensor is tilted, and "
+                                       "seeds the terrain: the vehicle stands on it)")
     knots: str = option(
         "auto", choices=("auto",) + KNOT_PLACEMENTS,
         help="robust method: 'adaptive' knot spans, narrower where the grid has more "
