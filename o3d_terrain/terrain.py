@@ -106,6 +106,11 @@ PRIOR_LEVEL_MIN_CELLS = 50
 #: faces")
 PRIOR_LEVEL_MAX_SLOPE_DEG = 50.0
 PRIOR_LEVEL_ROUNDS = 3
+#: compact cells at the level of the ground the sensor stands on (anywhere in the grid) keep
+#: their weight up to this much (m) further above the surface: where the surface rounds an
+#: edge the sensor cannot see (the top of a raised road, a berm's lip) they would otherwise
+#: become outliers and let it sag further (docs/algorithm.md, "A vehicle on a berm")
+LEVEL_WIDEN = 0.1
 
 
 @dataclass(frozen=True)
@@ -248,8 +253,9 @@ def fit_grid_detailed(
         than PRIOR_LEVEL_MIN_TILT_DEG (a pitched or rolled sensor, the cloud in its frame),
         the prior's connectivity measures slope against that ground's plane
         (:func:`sensor_ground_plane`); its compact test does not. The cells on that plane
-        seed the connectivity (:func:`_sensor_seeds`: a vehicle stands on terrain). None =
-        the grid's z is level, no seeds of the sensor's.
+        seed the connectivity (:func:`_sensor_seeds`: a vehicle stands on terrain), and the
+        compact cells at that level anywhere keep their weight :data:`LEVEL_WIDEN` further
+        above the surface. None = the grid's z is level, no seeds of the sensor's.
     knots: (robust) "uniform" spans, or "adaptive": spans narrower where the grid has more
         measured cells and wider where it has few, when the layout's uniform spacing is
         coarse for the grid (:func:`knot_densities`; the stage's default on a vehicle's
@@ -328,6 +334,8 @@ def fit_grid_detailed(
                 grid, max_slope_deg, gap_slope_deg, max_obstacle_width, 3.0 * noise_floor,
                 _level_plane(grid, sensor_origin, ground),
                 _sensor_seeds(grid, sensor_origin, ground, 3.0 * noise_floor))
+            level = _sensor_seeds(grid, sensor_origin, ground, 3.0 * noise_floor,
+                                  radius=math.inf)
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow),
             # that rise measured to compact neighbours only: a wall or a bush face next to
@@ -337,6 +345,8 @@ def fit_grid_detailed(
             spread = 0.5 * _ground.compact_rise(
                 np.ascontiguousarray(low, dtype=np.float64), compact, float(grid.cell_size),
                 math.tan(math.radians(max_slope_deg)))
+            if level is not None:  # the ground at the sensor's level (LEVEL_WIDEN)
+                spread = spread + np.where(level & compact, LEVEL_WIDEN, 0.0)
             protected = compact
             if use_layer and grid.highest is not None:
                 # ground under a canopy: connected cells whose sample is their ground layer,
@@ -443,7 +453,44 @@ def _sensor_ground(grid: HeightGrid, sensor_origin, radius: float = PRIOR_LEVEL_
         np.ascontiguousarray(low, dtype=np.float64), measured, grid.x_centers,
         grid.y_centers, float(sensor_origin[0]), float(sensor_origin[1]), float(radius),
         math.cos(math.radians(PRIOR_LEVEL_MAX_SLOPE_DEG)), int(min_cells), PRIOR_LEVEL_ROUNDS)
+    if math.isfinite(height):
+        height = _ground_height(grid, low, measured, sensor_origin, gx, gy, radius, min_cells)
     return float(gx), float(gy), float(height)
+
+
+def _block_around(grid: HeightGrid, sensor_origin, radius: float):
+    """(block, dx, dy): the slice of the grid's cells within ``radius`` of the sensor along x
+    and y, and their centres' offsets from it as a column and a row; None when no cell lies
+    there."""
+    dx = grid.x_centers - float(sensor_origin[0])
+    dy = grid.y_centers - float(sensor_origin[1])
+    i = np.flatnonzero(np.abs(dx) <= radius)
+    j = np.flatnonzero(np.abs(dy) <= radius)
+    if i.size == 0 or j.size == 0:
+        return None
+    block = np.s_[i[0]:i[-1] + 1, j[0]:j[-1] + 1]
+    return block, dx[block[0]][:, None], dy[block[1]][None, :]
+
+
+def _ground_height(grid, low, measured, sensor_origin, gx, gy, radius, count):
+    """The plane's height at the sensor: the median of the lowest points (less the plane's
+    tilt) of the ``count`` measured cells nearest the sensor whose points rise less than a
+    PRIOR_LEVEL_MAX_SLOPE_DEG plane across a cell: the ground the sensor stands on, where
+    the least-squares plane through two levels (a raised road above the ground beside it)
+    would sit between them."""
+    around = _block_around(grid, sensor_origin, radius)
+    if around is None:
+        return math.nan
+    block, bx, by = around
+    ok = measured[block].copy()
+    if grid.highest is not None:
+        rise = grid.cell_size * math.tan(math.radians(PRIOR_LEVEL_MAX_SLOPE_DEG))
+        ok &= grid.highest[block] - low[block] <= rise
+    d2 = (bx * bx + by * by)[ok]
+    if d2.size < count:
+        return math.nan
+    level = (low[block] - gx * bx - gy * by)[ok]
+    return float(np.median(level[np.argpartition(d2, count - 1)[:count]]))
 
 
 def _level_plane(grid: HeightGrid, sensor_origin, ground=None) -> np.ndarray | None:
@@ -468,21 +515,17 @@ def _sensor_seeds(grid: HeightGrid, sensor_origin, ground, tolerance: float,
     below it by at most ``tolerance`` plus the plane's rise across half a cell (a cell's
     lowest point on a slope). A vehicle stands on terrain, so they seed the prior's
     connectivity: on a berm or a plateau whose edges the sensor cannot see, the lowest cells
-    around (the floor below) would not reach them. None without a sensor or a plane."""
+    around (the floor below) would not reach them. With ``radius`` inf: the cells at that
+    level anywhere, which :data:`LEVEL_WIDEN` widens. None without a sensor or a plane."""
     if sensor_origin is None or ground is None or not math.isfinite(ground[2]):
         return None
     gx, gy, height = ground
     low = grid.lowest if grid.lowest is not None else grid.z
-    dx = grid.x_centers - float(sensor_origin[0])
-    dy = grid.y_centers - float(sensor_origin[1])
-    i = np.flatnonzero(np.abs(dx) <= radius)  # the block around the sensor
-    j = np.flatnonzero(np.abs(dy) <= radius)
     seeds = np.zeros(grid.shape, bool)
-    if i.size == 0 or j.size == 0:
+    around = _block_around(grid, sensor_origin, radius)
+    if around is None:
         return seeds
-    block = np.s_[i[0]:i[-1] + 1, j[0]:j[-1] + 1]
-    dx = dx[block[0]][:, None]
-    dy = dy[block[1]][None, :]
+    block, dx, dy = around
     off = low[block] - (height + gx * dx + gy * dy)
     drop = tolerance + 0.5 * grid.cell_size * (abs(gx) + abs(gy))
     seeds[block] = ((grid.state[block] == MEASURED) & (dx * dx + dy * dy <= radius * radius)

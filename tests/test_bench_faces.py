@@ -178,3 +178,21 @@ def test_the_berm_a_vehicle_stands_on_is_terrain():
     berm = np.hypot(p[:, 0], p[:, 1]) < 15.0  # the berm and the face above it, no object
     assert found[berm].mean() > 0.97  # 0.385 without the sensor's seeds
     assert found.mean() > 0.97
+
+
+def test_the_edges_of_a_raised_road_stay_terrain():
+    # a pickup on a 3 m embankment with 35-degree flanks and an 8 m top: the flanks face
+    # away from the lidar, the surface rounds the top's edges; the cells at the level of the
+    # ground the vehicle stands on keep their weight a little further above it (LEVEL_WIDEN)
+    run = 3.0 / math.tan(math.radians(35.0))
+    features = (Plane(), Ramp(0, -4 - run, 90, 35.0, run), Ramp(0, 4, 90, -35.0, run))
+    scene = Scene("embankment", features, (), region=(-40, 40, -40, 40))
+    cloud = sample_lidar(scene, beams=64, azimuth_steps=900, fov_deg=(-24.8, 2.0), seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    p = p[~cloud.is_outlier & np.isfinite(p).all(axis=1)]
+    _, inliers = segment_terrain(p)
+    found = np.zeros(len(p), bool)
+    found[inliers] = True
+    edges = (np.abs(p[:, 1]) > 2.5) & (np.abs(p[:, 1]) < 4.5)
+    assert found[edges].mean() > 0.9  # 0.072 before
+    assert found.mean() > 0.95  # 0.820 before
