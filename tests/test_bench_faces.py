@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from o3d_terrain import terrain as terrain_module
 from o3d_terrain.api import segment_terrain
 from o3d_terrain.faces import FACE_MAX_LIMIT_DEG, FACE_RUN, face_limit, face_run, planar_cells
 from o3d_terrain.grid import quantize_points
@@ -196,3 +197,20 @@ def test_the_edges_of_a_raised_road_stay_terrain():
     edges = (np.abs(p[:, 1]) > 2.5) & (np.abs(p[:, 1]) < 4.5)
     assert found[edges].mean() > 0.9  # 0.072 before
     assert found.mean() > 0.95  # 0.820 before
+
+
+def test_the_sensors_ground_height_is_the_level_it_stands_on(rng):
+    # an 8 m strip 3 m above wide ground on both sides, the sensor 1.8 m above the strip and
+    # no points within 3 m of it (a lidar's blind ring): the least-squares plane through 15 m
+    # sits between the levels, the ground under the sensor is the strip's
+    x = rng.uniform(-15, 15, 60_000)
+    y = rng.uniform(-15, 15, 60_000)
+    z = np.where(np.abs(y) < 4.0, -1.8, -4.8) + rng.normal(0, 0.01, x.size)
+    keep = np.hypot(x, y) > 3.0
+    grid = quantize_points(np.column_stack([x, y, z])[keep], cell_size=0.5)
+    gx, gy, height = terrain_module._sensor_ground(grid, (0.0, 0.0, 0.0))
+    assert abs(gx) < 0.01 and abs(gy) < 0.01
+    assert abs(height + 1.8) < 0.05
+    seeds = terrain_module._sensor_seeds(grid, (0.0, 0.0, 0.0), (gx, gy, height), 0.09)
+    ys = grid.y_centers[np.nonzero(seeds)[1]]
+    assert seeds.any() and np.all(np.abs(ys) < 4.0)  # the strip's cells only
