@@ -26,10 +26,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
+from bench_pit import OBSTACLE_HEIGHT, score_row
 
-import o3d_terrain
-from o3d_terrain.evaluation.metrics import segmentation_counts
-from o3d_terrain.evaluation.peers import make_peer
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
 
@@ -37,7 +35,6 @@ from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
 EMBANKMENTS = ((2.0, 30.0, 6.0), (3.0, 35.0, 8.0), (5.0, 40.0, 10.0), (8.0, 45.0, 12.0))
 VARIANTS = {"defaults": {}, "smoothing=0.01": {"smoothing": 0.01},
             "control_points=(64, 64)": {"control_points": (64, 64)}}
-OBSTACLE_HEIGHT = 0.3
 
 
 def embankment_scene(height: float, flank_deg: float, top: float) -> Scene:
@@ -64,11 +61,6 @@ def embankment_cloud(height: float, flank_deg: float, top: float, sensor_height:
     return p[keep], truth, tall
 
 
-def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> str:
-    counts = segmentation_counts(ground, truth, obstacle=tall)
-    return f"{counts.f1:.4f} / {counts.obstacle_recall:.3f}"
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--peers", action="store_true",
@@ -83,15 +75,7 @@ def main() -> None:
     for height, flank, top in EMBANKMENTS:
         for sensor_height in (1.8, 4.0):
             p, truth, tall = embankment_cloud(height, flank, top, sensor_height)
-            cells = []
-            for options in VARIANTS.values():
-                _, inliers = o3d_terrain.segment_terrain(p, **options)
-                ground = np.zeros(len(p), bool)
-                ground[inliers] = True
-                cells.append(score(ground, truth, tall))
-            for name in peers:
-                ground = np.asarray(make_peer(name, sensor_height=sensor_height).segment(p), bool)
-                cells.append(score(ground, truth, tall))
+            cells = score_row(p, truth, tall, VARIANTS.values(), peers, sensor_height)
             print(f"| {height:g} m, {flank:g}°, {top:g} m | {sensor_height:g} | {len(p):,} | "
                   + " | ".join(cells) + " |", flush=True)
 

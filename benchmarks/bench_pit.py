@@ -113,6 +113,23 @@ def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> str:
     return f"{counts.f1:.4f} / {counts.obstacle_recall:.3f}"
 
 
+def score_row(p: np.ndarray, truth: np.ndarray, tall: np.ndarray, option_sets, peers,
+              sensor_height: float) -> list[str]:
+    """:func:`score` of ``segment_terrain`` with each of ``option_sets`` (dicts of keyword
+    arguments), then of each peer named in ``peers`` (given the sensor's height), on one
+    cloud."""
+    cells = []
+    for options in option_sets:
+        _, inliers = o3d_terrain.segment_terrain(p, **options)
+        ground = np.zeros(len(p), bool)
+        ground[inliers] = True
+        cells.append(score(ground, truth, tall))
+    for name in peers:
+        ground = np.asarray(make_peer(name, sensor_height=sensor_height).segment(p), bool)
+        cells.append(score(ground, truth, tall))
+    return cells
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--angles", default="45,55,65,75", help="face angles (deg)")
@@ -133,15 +150,7 @@ def main() -> None:
                                  for a in args.angles.split(",")
                                  for h in args.heights.split(",")):
         p, truth, tall = pit_cloud(angle, height, place)
-        cells = []
-        for limit in LIMITS:
-            _, inliers = o3d_terrain.segment_terrain(p, max_slope_deg=limit)
-            ground = np.zeros(len(p), bool)
-            ground[inliers] = True
-            cells.append(score(ground, truth, tall))
-        for name in peers:
-            ground = np.asarray(make_peer(name, sensor_height=height).segment(p), bool)
-            cells.append(score(ground, truth, tall))
+        cells = score_row(p, truth, tall, [{"max_slope_deg": v} for v in LIMITS], peers, height)
         frame = o3d_terrain.stages.RationalBSplineTerrain()(
             o3d_terrain.stages.GridQuantize()(p))
         fit = frame.product("terrain_fit")
