@@ -28,6 +28,7 @@ from .terrain import fit_grid, fit_grid_detailed
 from .segment import TerrainLabel
 from .noise import RangeNoise
 from .api import fit_terrain, segment_terrain
+from .locate import locate_sensor
 from .level import level_cloud
 from .obstacles import DetectedObstacle, ObstacleSet, detect_obstacles
 from .traversability import CostMap, VehicleProfile, load_vehicle_profile, traversability_cost
@@ -41,7 +42,8 @@ __all__ = [
     "STAGES", "GridQuantize", "ReadCloud",
     "Pipeline", "load_pipeline", "parse_pipeline", "WRITERS",
     "TerrainSurface", "make_lsq_surface", "fit_grid", "fit_grid_detailed",
-    "TerrainLabel", "RangeNoise", "fit_terrain", "segment_terrain", "level_cloud",
+    "TerrainLabel", "RangeNoise", "fit_terrain", "segment_terrain", "locate_sensor",
+    "level_cloud",
     "DetectedObstacle", "ObstacleSet", "detect_obstacles",
     "CostMap", "VehicleProfile", "load_vehicle_profile", "traversability_cost",
     "ObstacleTracker",

@@ -18,9 +18,10 @@ from .errors import ConfigError, InputError
 from .frame import LABELS, Frame, as_frame
 from .grid import region_of
 from .ground_layer import default_layer
+from .locate import locate_sensor
 from .noise import RangeNoise
 from .segment import (AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, FOOT_LINES,
-                      TerrainLabel)
+                      TerrainLabel, sensor_in_cloud)
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
@@ -113,6 +114,20 @@ def _origin(sensor_origin) -> tuple[float, ...]:
         raise InputError(f"sensor_origin must be three numbers (x, y, z), got {sensor_origin!r}")
 
 
+def _sensor_origin(sensor_origin, positions: np.ndarray) -> tuple[float, ...]:
+    """``sensor_origin`` as given, or for None: the origin when points lie around it (a
+    scan in its sensor's frame), else the sensor found from the scan
+    (:func:`o3d_terrain.locate.locate_sensor`: a vehicle's scan in a map or world frame),
+    else the origin (a top-down scan)."""
+    if sensor_origin is not None:
+        return _origin(sensor_origin)
+    origin = (0.0, 0.0, 0.0)
+    if len(positions) == 0 or sensor_in_cloud(positions, origin):
+        return origin
+    found = locate_sensor(positions)
+    return origin if found is None else found
+
+
 def _checked_region(positions: np.ndarray, region):
     """The region the grid covers: ``region`` or the cloud's extent (checked)."""
     if len(positions) == 0:
@@ -161,7 +176,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 control_points: Sequence[int] | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
-                sensor_origin: Sequence[float] = (0.0, 0.0, 0.0),
+                sensor_origin: Sequence[float] | None = None,
                 max_slope_deg: float | None = None,
                 cell_plane: bool = True, refine: bool = True,
                 knots: str = "auto") -> TerrainSurface:
@@ -204,7 +219,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     terrain points"); False = the robust loop's surface, about 30 % sooner on a 120k-point
     lidar frame. ``sensor_origin`` (cloud coordinates) is where those labels measure range
     from; the ground plane around it (the ground the vehicle stands on) seeds the prior and,
-    on a tilted sensor, gives it level.
+    on a tilted sensor, gives it level; None = as in :func:`segment_terrain`.
     knots: "auto" (default) = "adaptive" on a vehicle's scan, "uniform" on a top-down scan
     (no points near ``sensor_origin``); "adaptive" = knot spans narrower where the grid has
     more measured cells and wider where it has few, when the layout's uniform spacing is
@@ -214,20 +229,22 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
-    quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
-                                        smoothing, terrain_prior, range_noise, sensor_origin,
-                                        max_slope_deg, cell_plane, refine, knots)
     positions = _array_positions(cloud)
-    if positions is not None:  # numpy input: the stages' functions without a frame
+    frame = as_frame(cloud) if positions is None else None
+    origin = _sensor_origin(sensor_origin, positions if frame is None else frame.positions)
+    quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
+                                        smoothing, terrain_prior, range_noise, origin,
+                                        max_slope_deg, cell_plane, refine, knots)
+    if frame is None:  # numpy input: the stages' functions without a frame
         return _array_fit(positions, quantize, terrain)
-    return _terrain_frame(cloud, quantize, terrain).product("surface")
+    return _terrain_frame(frame, quantize, terrain).product("surface")
 
 
 def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     cell_size: float = 0.5, control_points: Sequence[int] | None = None,
                     degree: int = 3, distance_threshold: float | None = None,
                     below_threshold: float = 0.5, range_coefficient: float | None = None,
-                    sensor_origin: Sequence[float] = (0.0, 0.0, 0.0), method: str = "robust",
+                    sensor_origin: Sequence[float] | None = None, method: str = "robust",
                     smoothing: float = 0.05, terrain_prior: bool = True,
                     range_noise: RangeNoise | float | None = None,
                     misfit_threshold: bool = True, along_normal: bool = True,
@@ -260,18 +277,23 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     ``line_of_sight`` (and the sensor in the cloud), terrain points above the sensor that the
     surface would hide from it are obstacles (:func:`o3d_terrain.segment.out_of_sight`: an
     object beyond a crest whose own ground is not seen). ``sensor_origin``: where
-    the sensor is in the cloud's coordinates (the default (0, 0, 0) is a cloud in the sensor's
-    own frame; give it for a scan moved into a map or world frame): the range of the
-    thresholds and of ``range_noise``, and the ground around it defines level for the misfit's
-    slope term, so that a tilted sensor is labelled as a level one
-    (:func:`o3d_terrain.segment.sensor_ground_gradient`). Other options as in
+    the sensor is in the cloud's coordinates: the range of the thresholds and of
+    ``range_noise``, and the ground around it defines level for the misfit's slope term, so
+    that a tilted sensor is labelled as a level one
+    (:func:`o3d_terrain.segment.sensor_ground_gradient`). None (default) = (0, 0, 0) when
+    points lie around it (a cloud in its sensor's frame), else the sensor found from the scan
+    (:func:`o3d_terrain.locate.locate_sensor`: a vehicle's scan moved into a map or world
+    frame, found within a few metres and at the height of the ground there), else (0, 0, 0)
+    (a top-down scan); give it when you know it. Other options as in
     :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``;
     ``refine`` refits the surface to the points its automatic labels call terrain before
     these labels are made).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
-    origin = _origin(sensor_origin)
+    positions = _array_positions(cloud)
+    frame = as_frame(cloud) if positions is None else None
+    origin = _sensor_origin(sensor_origin, positions if frame is None else frame.positions)
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,
@@ -280,11 +302,10 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots)
-    positions = _array_positions(cloud)
-    if positions is not None:  # numpy input: the stages' functions without a frame
+    if frame is None:  # numpy input: the stages' functions without a frame
         surface = _array_fit(positions, quantize, terrain)
         labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
         return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
-    frame = segmenter(_terrain_frame(cloud, quantize, terrain))
+    frame = segmenter(_terrain_frame(frame, quantize, terrain))
     labels = frame.attribute(LABELS)
     return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)

@@ -68,6 +68,7 @@ def _cache_dir(dispatchers) -> str | None:
 def warm_up() -> WarmupReport:
     """Run every default path once on small generated clouds (a 32-beam lidar and a stereo
     camera over the off-road scene): ``segment_terrain`` on an array and on an Open3D cloud,
+    and on a scan moved into a map frame (its sensor found from the scan),
     the stage chain with obstacles and a cost map, the stereo chain with its range-dependent
     noise, and the paper's fit. Returns the :class:`WarmupReport`."""
     import open3d as o3d
@@ -99,6 +100,11 @@ def warm_up() -> WarmupReport:
         finally:
             numba.set_num_threads(threads)
     steps.append("segment_terrain")
+    # a vehicle's scan in a map frame: the sensor found from the scan (o3d_terrain.locate)
+    from .synthetic import make_scene, sample_lidar
+    valley = sample_lidar(make_scene("valley", seed=0), azimuth_steps=360, seed=0)
+    segment_terrain(np.asarray(valley.positions, dtype=np.float64) + (5.0e5, 4.0e6, 100.0))
+    steps.append("segment_terrain in a map frame")
     fit_terrain(positions, method="paper")
     steps.append("paper fit")
     stereo = {"type": "SyntheticScene", "scene": "offroad", "sensor": "stereo",

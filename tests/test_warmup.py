@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: in a fresh interpreter: warm up, note each kernel's machine code, then run what users run
 #: (the packaged lidar and stereo pipelines, segment_terrain on another scene and sensor, on
-#: every numba thread and on one) and list the kernels that had to compile or load more code
+#: every numba thread and on one, and on a scan in a map frame) and list the kernels that had to compile or load more code
 #: after the warm-up
 _PROBE = """
 import json, sys
@@ -34,6 +34,9 @@ cloud = sample_lidar(make_scene("hills", seed=3), tilt_deg=(4.0, -3.0), seed=3)
 segment_terrain(np.asarray(cloud.positions, dtype=np.float64))
 numba.set_num_threads(1)  # one thread takes the serial twins of the parallel kernels
 segment_terrain(np.asarray(cloud.positions, dtype=np.float64))
+# a scan in a map frame, its sensor found from the scan
+cloud = sample_lidar(make_scene("valley", seed=3), beams=64, seed=3)
+segment_terrain(np.asarray(cloud.positions, dtype=np.float64) + (2.0e5, 3.0e6, 50.0))
 grown = sorted(n for n, k in kernels().items() if len(k.overloads) != before.get(n, 0))
 print(json.dumps({"grown": grown, "ready": len(report.ready), "cache": report.cache_dir}))
 """
