@@ -15,8 +15,12 @@ second berm, 4 m from the face above it and 4 m from the edge of the face below,
 lidar sees that face from close up (not its top), the berm to its sides and, below, the
 benches and the floor with the objects (docs/algorithm.md, "Bench faces").
 
+The faces run along the cloud's y axis, and so along the grid's, unless ``--yaws`` turns the
+scan about the sensor's vertical: the labels depend on that angle (docs/algorithm.md, "Bench
+faces", its paragraph "Faces at an angle to the grid").
+
 Run: .venv/bin/python benchmarks/bench_pit.py [--angles 55,65,75] [--heights 1.8,4]
-     [--places floor,berm1,berm2] [--peers]
+     [--places floor,berm1,berm2] [--yaws 0,20,45] [--peers]
 """
 
 from __future__ import annotations
@@ -73,10 +77,12 @@ def sensor_xy(angle_deg: float, place: str) -> tuple[float, float]:
     return (FIRST_FACE + k * run + (k - 1) * BERM + BERM / 2, 0.0)
 
 
-def pit_cloud(angle_deg: float, sensor_height: float, place: str = "floor"):
-    """The pit's scan from ``place`` (:func:`sensor_xy`), in the sensor's frame: positions
-    (N, 3), ground truth (N,) and the object points more than :data:`OBSTACLE_HEIGHT` up (N,);
-    spurious returns and non-finite points dropped."""
+def pit_cloud(angle_deg: float, sensor_height: float, place: str = "floor",
+              yaw_deg: float = 0.0):
+    """The pit's scan from ``place`` (:func:`sensor_xy`), in the sensor's frame turned by
+    ``yaw_deg`` about its vertical (the faces then run at that angle to the cloud's y axis):
+    positions (N, 3), ground truth (N,) and the object points more than
+    :data:`OBSTACLE_HEIGHT` up (N,); spurious returns and non-finite points dropped."""
     cloud = sample_lidar(pit_scene(angle_deg), sensor_xy=sensor_xy(angle_deg, place), beams=64,
                          azimuth_steps=1800, fov_deg=(-24.8, 2.0), sensor_height=sensor_height,
                          seed=0)
@@ -84,7 +90,9 @@ def pit_cloud(angle_deg: float, sensor_height: float, place: str = "floor"):
     keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
     truth = ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
     tall = ~truth & (cloud.true_height_above_terrain[keep] > OBSTACLE_HEIGHT)
-    return p[keep], truth, tall
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return p[keep] @ turn.T, truth, tall
 
 
 def place_name(place: str) -> str:
@@ -136,26 +144,30 @@ def main() -> None:
     parser.add_argument("--heights", default="1.8,4", help="sensor heights above the floor (m)")
     parser.add_argument("--places", default="floor,berm1",
                         help="where the vehicle stands: floor, berm1, berm2, ...")
+    parser.add_argument("--yaws", default="0",
+                        help="the scan turned by these angles about the sensor's vertical "
+                             "(deg; 0: the faces run along the grid's y axis)")
     parser.add_argument("--peers", action="store_true",
                         help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
     args = parser.parse_args()
     peers = ["patchworkpp", "csf", "smrf", "ransac_plane"] if args.peers else []
     columns = ["automatic" if v is None else f"{v:g}°" for v in LIMITS] + peers
     print("ground F1 / obstacle recall; `segment_terrain` with `max_slope_deg` automatic or fixed")
-    print("| sensor on | faces | sensor height (m) | points | limit chosen (face run, m) | "
+    print("| sensor on | faces | sensor height (m) | yaw | points | limit chosen (face run, m) | "
           + " | ".join(columns) + " |")
-    print("|---|---|---:|---:|---:|" + "---|" * len(columns))
-    for angle, place, height in ((float(a), place, float(h))
-                                 for place in args.places.split(",")
-                                 for a in args.angles.split(",")
-                                 for h in args.heights.split(",")):
-        p, truth, tall = pit_cloud(angle, height, place)
+    print("|---|---|---:|---:|---:|---:|" + "---|" * len(columns))
+    for angle, place, height, yaw in ((float(a), place, float(h), float(y))
+                                      for place in args.places.split(",")
+                                      for a in args.angles.split(",")
+                                      for h in args.heights.split(",")
+                                      for y in args.yaws.split(",")):
+        p, truth, tall = pit_cloud(angle, height, place, yaw)
         cells = score_row(p, truth, tall, [{"max_slope_deg": v} for v in LIMITS], peers, height)
         frame = o3d_terrain.stages.RationalBSplineTerrain()(
             o3d_terrain.stages.GridQuantize()(p))
         fit = frame.product("terrain_fit")
         run = "-" if fit.face_run is None else f"{fit.face_run:.1f}"
-        print(f"| {place_name(place)} | {angle:g}° | {height:g} | {len(p):,} | "
+        print(f"| {place_name(place)} | {angle:g}° | {height:g} | {yaw:g}° | {len(p):,} | "
               f"{fit.max_slope_deg:.1f}° ({run}) | "
               + " | ".join(cells) + " |", flush=True)
 

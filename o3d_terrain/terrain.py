@@ -416,8 +416,10 @@ def terrain_prior_mask(grid: HeightGrid, *, max_slope_deg: float = MAX_SLOPE_DEG
     - the sample (eq. 1) within tolerance plus half the terrain's rise across the cell (see
       below) of the lowest point (no wall or person filling the cell);
     - when the grid carries the highest point per cell: highest - lowest within tolerance plus
-      the terrain's rise across one cell, cell_size times the steepest slope from the cell's
-      lowest point to a neighbour's (at most tan(max_slope_deg)). A cell on a wall or a bush
+      the terrain's rise across one cell, cell_size (|gx| + |gy|) of the slopes from the
+      cell's lowest point to its neighbours' along x and along y (at most tan(max_slope_deg)
+      together; :func:`o3d_terrain._kernels.ground.neighbour_rise`): what a plane spans from
+      corner to corner of a cell, whatever its direction to the grid. A cell on a wall or a bush
       face holds points far above its lowest while its neighbours' lowest points (the ground
       along and in front of the face) are level with its own.
     A connected cell with fewer points (and no larger extent) is compact when at least

@@ -181,6 +181,32 @@ def test_the_berm_a_vehicle_stands_on_is_terrain():
     assert found.mean() > 0.97
 
 
+@pytest.mark.parametrize("yaw", [0.0, 20.0, 45.0])
+def test_a_face_at_an_angle_to_the_grid_is_terrain_as_one_along_it(yaw):
+    # a pickup's lidar 1.8 m up on the first berm of 65-degree benches, the scan turned about
+    # the sensor: the face 4 m ahead runs along the grid's y axis, or across its cells. A cell
+    # of the turned face spans up to sqrt(2) times the face's rise along an axis, which the
+    # rise across a cell must allow (neighbour_rise; with the steepest neighbour slope,
+    # 0.22 of the face was found at 20 degrees, 0.99 along the axis and at 45 degrees)
+    run = 6.0 / math.tan(math.radians(65.0))
+    features = (Plane(),) + tuple(Ramp(10 + k * (run + 8), 0, 0, 65.0, run) for k in range(4))
+    scene = Scene("pit65", features, (), region=(-30, 70, -40, 40))
+    cloud = sample_lidar(scene, sensor_xy=(10 + run + 4, 0.0), beams=64, azimuth_steps=900,
+                         fov_deg=(-24.8, 2.0), seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    p = p[~cloud.is_outlier & np.isfinite(p).all(axis=1)]
+    face = (p[:, 0] > 4.0) & (p[:, 0] < 4.0 + run) & (p[:, 2] > -1.5)  # the face above
+    turn = math.radians(yaw)
+    rotation = np.array([[math.cos(turn), -math.sin(turn), 0.0],
+                         [math.sin(turn), math.cos(turn), 0.0], [0.0, 0.0, 1.0]])
+    _, inliers = segment_terrain(p @ rotation.T)
+    found = np.zeros(len(p), bool)
+    found[inliers] = True
+    assert face.sum() > 5000
+    assert found[face].mean() > 0.95
+    assert found.mean() > 0.97
+
+
 def test_the_edges_of_a_raised_road_stay_terrain():
     # a pickup on a 3 m embankment with 35-degree flanks and an 8 m top: the flanks face
     # away from the lidar, the surface rounds the top's edges; the cells at the level of the

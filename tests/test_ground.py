@@ -7,8 +7,8 @@ import pytest
 from naive import above_slope_cone, cone_fill
 
 from o3d_terrain._kernels.ground import (below_compact_neighbours,
-                                         compact_cells, compact_rise, prior_seeds,
-                                         steepest_neighbour_slope, window_min)
+                                         compact_cells, compact_rise, neighbour_rise,
+                                         prior_seeds, window_min)
 
 
 @pytest.mark.parametrize("shape,radius", [((31, 20), 4), ((7, 5), 3), ((30, 9), 1),
@@ -24,20 +24,60 @@ def test_window_min_matches_a_plain_loop(rng, shape, radius):
             assert got[i, j] == window.min()
 
 
-def test_steepest_neighbour_slope_matches_a_plain_loop(rng):
-    h = rng.normal(0, 1, (9, 7))
-    h[rng.uniform(size=h.shape) < 0.2] = np.inf
-    got = steepest_neighbour_slope(h, 0.5)
-    for i in range(9):
-        for j in range(7):
-            best = 0.0
+def _rise_reference(h, cell, cap):
+    """neighbour_rise in plain Python: of the rises to the two neighbours along x and the two
+    along y, the largest and (with neighbours on both axes) the least of the two axes'
+    smaller ones, as slopes capped together at ``cap``, summed over the cell; where an axis
+    has no neighbour, a diagonal neighbour's rise (at most cell * cap * sqrt(2)) where
+    larger."""
+    out = np.zeros(h.shape)
+    for i in range(h.shape[0]):
+        for j in range(h.shape[1]):
+            if not np.isfinite(h[i, j]):
+                continue
+            rises = {"x": [], "y": [], "d": []}
             for di in (-1, 0, 1):
                 for dj in (-1, 0, 1):
                     a, b = i + di, j + dj
-                    if (di or dj) and 0 <= a < 9 and 0 <= b < 7 and np.isfinite(h[a, b]) \
-                            and np.isfinite(h[i, j]):
-                        best = max(best, abs(h[a, b] - h[i, j]) / (0.5 * np.hypot(di, dj)))
-            assert got[i, j] == pytest.approx(best)
+                    if (di or dj) and 0 <= a < h.shape[0] and 0 <= b < h.shape[1] \
+                            and np.isfinite(h[a, b]):
+                        key = "x" if dj == 0 else "y" if di == 0 else "d"
+                        rises[key].append(abs(h[a, b] - h[i, j]))
+            both = bool(rises["x"]) and bool(rises["y"])
+            large = max(rises["x"] + rises["y"] + [0.0]) / cell
+            small = min(min(rises["x"]), min(rises["y"])) / cell if both else 0.0
+            scale = min(1.0, cap / np.hypot(large, small)) if large else 1.0
+            out[i, j] = cell * scale * (large + small)
+            if not both:
+                out[i, j] = max(out[i, j], min(max(rises["d"] + [0.0]), cell * cap * np.sqrt(2)))
+    return out
+
+
+def test_neighbour_rise_matches_a_plain_loop(rng):
+    h = rng.normal(0, 1, (9, 7))
+    h[rng.uniform(size=h.shape) < 0.2] = np.inf
+    for cap in (1.0, 100.0):
+        np.testing.assert_allclose(neighbour_rise(h, 0.5, cap), _rise_reference(h, 0.5, cap))
+
+
+@pytest.mark.parametrize("direction_deg", [0.0, 20.0, 45.0, 110.0])
+def test_the_rise_across_a_cell_is_the_planes_whatever_its_direction(direction_deg):
+    """On a 60° plane whose cells' lowest points lie at their downslope corners, the rise is
+    the plane's from one corner of a cell to the opposite one, c tan(60°) (|cos| + |sin|) of
+    the plane's direction: a face at an angle to the grid spans that much in a cell (the
+    steepest slope to a neighbour, the rise before, gave it along the axes only)."""
+    c, g = 0.5, np.tan(np.radians(60.0))
+    t = np.radians(direction_deg)
+    gx, gy = g * np.cos(t), g * np.sin(t)
+    i, j = np.meshgrid(np.arange(12), np.arange(12), indexing="ij")
+    # the lowest corner of cell (i, j): the plane's least value over its four corners
+    low = np.minimum.reduce([gx * (i + a) * c + gy * (j + b) * c for a in (0, 1) for b in (0, 1)])
+    expected = c * g * (abs(np.cos(t)) + abs(np.sin(t)))
+    rise = neighbour_rise(low, c, np.tan(np.radians(65.0)))
+    np.testing.assert_allclose(rise[1:-1, 1:-1], expected)
+    # capped at a 45° limit: the capped plane's rise in the same direction
+    capped = neighbour_rise(low, c, 1.0)
+    np.testing.assert_allclose(capped[1:-1, 1:-1], c * (abs(np.cos(t)) + abs(np.sin(t))))
 
 
 @pytest.mark.parametrize("need", [1, 2])
@@ -65,7 +105,7 @@ def test_compact_cells_matches_its_definition(rng, use_highest):
     connected = np.isfinite(low) & (rng.uniform(size=shape) < 0.9)
     compact, rise = compact_cells(low, sample, highest, count, connected, 0.5, 1.0, 0.09, 3, 2,
                                   use_highest)
-    expected_rise = 0.5 * np.minimum(steepest_neighbour_slope(low, 0.5), 1.0)
+    expected_rise = _rise_reference(low, 0.5, 1.0)
     np.testing.assert_allclose(rise, expected_rise)
     with np.errstate(invalid="ignore"):  # inf - inf at empty cells (never connected)
         extent = (highest - low <= 0.09 + expected_rise) if use_highest else np.ones(shape, bool)
@@ -82,22 +122,14 @@ def test_compact_rise_matches_its_definition(rng):
     low = rng.normal(0, 0.3, shape)
     compact = rng.uniform(size=shape) < 0.6
     got = compact_rise(low, compact, 0.5, 1.0)
-    for i in range(shape[0]):
-        for j in range(shape[1]):
-            best = 0.0
-            if compact[i, j]:
-                for a in range(max(0, i - 1), min(shape[0], i + 2)):
-                    for b in range(max(0, j - 1), min(shape[1], j + 2)):
-                        if (a, b) != (i, j) and compact[a, b]:
-                            best = max(best, abs(low[a, b] - low[i, j]) / np.hypot(a - i, b - j))
-            assert got[i, j] == pytest.approx(min(best, 0.5))
+    np.testing.assert_allclose(got, _rise_reference(np.where(compact, low, np.inf), 0.5, 1.0))
     # a compact cell whose only higher neighbour is not compact (a face above it): no rise
     low = np.zeros((3, 3))
     low[1, 2] = 0.4
     compact = np.ones((3, 3), bool)
     compact[1, 2] = False
     assert compact_rise(low, compact, 0.5, 1.0)[1, 1] == 0.0
-    assert steepest_neighbour_slope(low, 0.5)[1, 1] == pytest.approx(0.8)
+    assert neighbour_rise(low, 0.5, 1.0)[1, 1] == pytest.approx(0.4)
 
 
 @pytest.mark.parametrize("shape", [(23, 17), (1, 6), (6, 1), (40, 33)])

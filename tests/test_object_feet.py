@@ -8,8 +8,8 @@ import pytest
 
 from o3d_terrain.api import segment_terrain
 from o3d_terrain.errors import InputError
-from o3d_terrain.segment import (TerrainLabel, mark_object_feet, scan_line_spacing,
-                                 segment_points)
+from o3d_terrain.segment import (TerrainLabel, auto_range_coefficient, auto_threshold,
+                                 mark_object_feet, scan_line_spacing, segment_points)
 from o3d_terrain.spline import make_lsq_surface
 from o3d_terrain.synthetic import (Obstacle, default_obstacles, make_scene, sample_lidar,
                                    sample_stereo)
@@ -248,10 +248,12 @@ def test_behind_the_marks_only_on_a_lidar_scan():
     """A stereo pair's depth noise grows with range (its range coefficient is not 0), so a
     ground point in front of an object can appear behind it: segment_points leaves the rule
     off there."""
-    scene = make_scene("ditch_berm", seed=0).with_obstacles(default_obstacles(0))
+    scene = make_scene("hills", seed=0).with_obstacles(default_obstacles(0))
     stereo = sample_stereo(scene, seed=0).positions
     stereo = stereo[np.isfinite(stereo).all(axis=1)]
     surface, _ = segment_terrain(stereo)
+    h = surface.heights_above(stereo)
+    assert auto_range_coefficient(stereo, h, auto_threshold(h)) > 0  # the premise
     for threshold in (None, 0.2):  # a fixed threshold: the data are asked all the same
         off, _ = segment_points(surface, stereo, threshold=threshold, foot_behind=0)
         on, _ = segment_points(surface, stereo, threshold=threshold)

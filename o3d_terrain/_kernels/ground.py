@@ -148,21 +148,33 @@ def connected_terrain(height, seeds, cell_size, step_slope, tolerance):
 
 
 @numba.njit(cache=True)
-def steepest_neighbour_slope(height, cell_size):
-    """Per cell, the steepest slope (rise over run, ≥ 0) from it to any 8-neighbour:
-    max |height[n] - height[c]| / d(c, n) over neighbours n with finite height; 0 for a cell
-    without finite neighbours, and for inf (empty) cells. The largest rise along the axes and
-    across are divided once each: a correctly rounded division by a positive number keeps the
-    order, so this is the maximum of the per-neighbour ratios."""
+def neighbour_rise(height, cell_size, max_slope):
+    """Per cell, the terrain's rise across it (m) from the lowest points of its 8-neighbours.
+
+    A plane of gradient (gx, gy) rises cell_size * (|gx| + |gy|) from one corner of a cell to
+    the opposite one, whatever its direction to the grid. Each axis gives the rises to its
+    two neighbours, equal on a plane: the steeper one along either axis is the larger
+    component (the face's, at the foot or the top of a face, where one neighbour is level),
+    the gentler one along either axis the smaller (what noise least inflates: along a face,
+    its cells' lowest points differ by their noise only). The two, as slopes, are capped
+    together at ``max_slope`` in magnitude, then summed over the cell. Where an axis has no
+    finite neighbour, a diagonal neighbour's rise (the sum, on a plane) counts when larger,
+    at most cell_size * max_slope * sqrt(2). 0 for a cell without finite neighbours, and for
+    inf (empty) cells. On a plane along an axis the rise is cell_size times its slope, as
+    the steepest slope to a neighbour gave it before; across the axes up to sqrt(2) times
+    more, which that missed (docs/algorithm.md, "Bench faces at an angle to the grid"): a
+    65-degree face at 20 degrees to the grid's axes spans 1.37 m in a 0.5 m cell, the
+    steepest neighbour slope gave 1.0 m, and its cells were no terrain."""
     nx, ny = height.shape
     out = np.zeros((nx, ny))
-    diagonal = cell_size * _SQRT2
     for i in range(nx):
         for j in range(ny):
             h = height[i, j]
             if not np.isfinite(h):
                 continue
-            straight = 0.0
+            # per axis: the larger and the smaller rise to its neighbours (-1: none)
+            x_max = y_max = -1.0
+            x_min = y_min = np.inf
             across = 0.0
             for di in range(-1, 2):
                 a = i + di
@@ -175,11 +187,26 @@ def steepest_neighbour_slope(height, cell_size):
                     hn = height[a, b]
                     if not np.isfinite(hn):
                         continue
-                    if di == 0 or dj == 0:
-                        straight = max(straight, abs(hn - h))
+                    d = abs(hn - h)
+                    if dj == 0:
+                        x_max = max(x_max, d)
+                        x_min = min(x_min, d)
+                    elif di == 0:
+                        y_max = max(y_max, d)
+                        y_min = min(y_min, d)
                     else:
-                        across = max(across, abs(hn - h))
-            out[i, j] = max(straight / cell_size, across / diagonal)
+                        across = max(across, d)
+            both = x_max >= 0.0 and y_max >= 0.0
+            large = max(x_max, y_max, 0.0) / cell_size
+            small = min(x_min, y_min) / cell_size if both else 0.0
+            slope = math.sqrt(large * large + small * small)
+            if slope > max_slope:
+                large *= max_slope / slope
+                small *= max_slope / slope
+            rise = cell_size * (large + small)
+            if not both:
+                rise = max(rise, min(across, cell_size * max_slope * _SQRT2))
+            out[i, j] = rise
     return out
 
 
@@ -218,19 +245,18 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
     """The compact cells of a connected terrain and the terrain's rise across each cell
     (o3d_terrain.terrain.terrain_prior_mask), in two passes over the grid.
 
-    rise = cell_size * min(:func:`steepest_neighbour_slope` of ``low``, max_rise_slope).
+    rise = :func:`neighbour_rise` of ``low`` (capped at ``max_rise_slope``).
     Dense compact: connected, count >= min_points, sample - low <= tolerance + rise / 2 and
     (with ``use_highest``) highest - low <= tolerance + rise. Sparse compact: connected,
     count < min_points, the same extent test, and :func:`below_compact_neighbours` of the
     dense compact cells with ``support``. Returns (compact, rise)."""
     nx, ny = low.shape
-    rise = steepest_neighbour_slope(low, cell_size)
+    rise = neighbour_rise(low, cell_size, max_rise_slope)
     dense = np.zeros((nx, ny), np.bool_)
     sparse = np.zeros((nx, ny), np.bool_)
     for i in range(nx):
         for j in range(ny):
-            r = cell_size * min(rise[i, j], max_rise_slope)
-            rise[i, j] = r
+            r = rise[i, j]
             if not connected[i, j]:
                 continue
             extent_ok = (not use_highest) or highest[i, j] - low[i, j] <= tolerance + r
@@ -249,8 +275,8 @@ def compact_cells(low, sample, highest, count, connected, cell_size, max_rise_sl
 @numba.njit(cache=True)
 def compact_rise(low, compact, cell_size, max_rise_slope):
     """The terrain's rise across each compact cell measured between terrain cells only:
-    cell_size * min(steepest slope from the cell's lowest point to a compact 8-neighbour's,
-    max_rise_slope); 0 on cells that are not compact or have no compact neighbour.
+    :func:`neighbour_rise` from the cell's lowest point to its compact 8-neighbours' (capped
+    at ``max_rise_slope``); 0 on cells that are not compact or have no compact neighbour.
 
     This is the widening of a compact cell above the surface (half of it: detail a control
     grid of about two cells' spacing cannot follow). :func:`compact_cells` measures the rise
@@ -262,10 +288,9 @@ def compact_rise(low, compact, cell_size, max_rise_slope):
     widest threshold of the grid and lifted the surface onto the bush (SemanticKITTI at 16
     scan lines: F1 +0.7 / +0.5 / +0.3 with this rise; docs/algorithm.md, "Sparse scanners").
     On steep terrain the neighbours are compact themselves and the rise is unchanged."""
-    # :func:`steepest_neighbour_slope` skips empty (inf) cells and neighbours: hide the cells
+    # :func:`neighbour_rise` skips empty (inf) cells and neighbours: hide the cells
     # that are not compact
-    slope = steepest_neighbour_slope(np.where(compact, low, np.inf), cell_size)
-    return cell_size * np.minimum(slope, max_rise_slope)
+    return neighbour_rise(np.where(compact, low, np.inf), cell_size, max_rise_slope)
 
 
 @numba.njit(cache=True)
