@@ -30,6 +30,7 @@ import numpy as np
 import o3d_terrain
 from o3d_terrain.evaluation.datasets import data_root
 from o3d_terrain.evaluation.metrics import segmentation_counts
+from o3d_terrain.synthetic.sensors import rotation_matrix
 
 SENSOR = np.array([512345.0, 4123456.0, 310.0])
 YAW_DEG = 57.0
@@ -38,8 +39,7 @@ SETS = ("kitti", "synthetic", "pit", "dem")
 
 def to_map(p: np.ndarray) -> np.ndarray:
     """``p`` (sensor frame) in the map frame: turned by YAW_DEG about z, moved to SENSOR."""
-    c, s = math.cos(math.radians(YAW_DEG)), math.sin(math.radians(YAW_DEG))
-    return p @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T + SENSOR
+    return p @ rotation_matrix(yaw_deg=YAW_DEG).T + SENSOR
 
 
 def frames(sets):

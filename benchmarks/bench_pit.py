@@ -41,6 +41,7 @@ from o3d_terrain.evaluation.metrics import segmentation_counts
 from o3d_terrain.evaluation.peers import make_peer
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
+from o3d_terrain.synthetic.sensors import rotation_matrix
 
 #: where the default objects stand: on the pit floor, clear of the first face
 PLACES = {"pole": (5.0, 6.0), "pedestrian": (4.0, -3.0), "car": (-8.0, 5.0), "rock": (6.0, -8.0),
@@ -90,9 +91,7 @@ def pit_cloud(angle_deg: float, sensor_height: float, place: str = "floor",
     keep = ~cloud.is_outlier & np.isfinite(p).all(axis=1)
     truth = ~np.asarray(cloud.is_obstacle, dtype=bool)[keep]
     tall = ~truth & (cloud.true_height_above_terrain[keep] > OBSTACLE_HEIGHT)
-    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
-    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return p[keep] @ turn.T, truth, tall
+    return p[keep] @ rotation_matrix(yaw_deg=yaw_deg).T, truth, tall
 
 
 def place_name(place: str) -> str:

@@ -128,6 +128,16 @@ def _sensor_origin(sensor_origin, positions: np.ndarray) -> tuple[float, ...]:
     return origin if found is None else found
 
 
+def _input(cloud: Any, sensor_origin) -> tuple[np.ndarray | None, Frame | None, tuple]:
+    """(positions, frame, origin) of the api's input: a numeric array's positions without a
+    frame (:func:`_array_positions`), else its frame (:func:`as_frame`); and the sensor's
+    position in it (:func:`_sensor_origin`)."""
+    positions = _array_positions(cloud)
+    frame = as_frame(cloud) if positions is None else None
+    return positions, frame, _sensor_origin(sensor_origin,
+                                            positions if frame is None else frame.positions)
+
+
 def _checked_region(positions: np.ndarray, region):
     """The region the grid covers: ``region`` or the cloud's extent (checked)."""
     if len(positions) == 0:
@@ -229,9 +239,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
     """
-    positions = _array_positions(cloud)
-    frame = as_frame(cloud) if positions is None else None
-    origin = _sensor_origin(sensor_origin, positions if frame is None else frame.positions)
+    positions, frame, origin = _input(cloud, sensor_origin)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots)
@@ -291,9 +299,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
-    positions = _array_positions(cloud)
-    frame = as_frame(cloud) if positions is None else None
-    origin = _sensor_origin(sensor_origin, positions if frame is None else frame.positions)
+    positions, frame, origin = _input(cloud, sensor_origin)
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,

@@ -330,12 +330,14 @@ def fit_grid_detailed(
         compact = np.zeros((0, 0), bool)
         if terrain_prior:
             ground = None if sensor_origin is None else _sensor_ground(grid, sensor_origin)
+            # the cells at the level of the ground the sensor stands on, anywhere in the grid;
+            # those within PRIOR_LEVEL_RADIUS of it seed the prior
+            level = _sensor_seeds(grid, sensor_origin, ground, 3.0 * noise_floor,
+                                  radius=math.inf)
             connected, compact = _terrain_prior(
                 grid, max_slope_deg, gap_slope_deg, max_obstacle_width, 3.0 * noise_floor,
                 _level_plane(grid, sensor_origin, ground),
-                _sensor_seeds(grid, sensor_origin, ground, 3.0 * noise_floor))
-            level = _sensor_seeds(grid, sensor_origin, ground, 3.0 * noise_floor,
-                                  radius=math.inf)
+                None if level is None else level & _near_sensor(grid, sensor_origin))
             # compact cells above the surface: threshold widened by half the terrain's rise
             # across one cell (what a control grid of about 2 cells' spacing cannot follow),
             # that rise measured to compact neighbours only: a wall or a bush face next to
@@ -508,6 +510,14 @@ def _level_plane(grid: HeightGrid, sensor_origin, ground=None) -> np.ndarray | N
         return None
     return gx * (grid.x_centers - float(sensor_origin[0]))[:, None] + \
         gy * (grid.y_centers - float(sensor_origin[1]))[None, :]
+
+
+def _near_sensor(grid: HeightGrid, sensor_origin,
+                 radius: float = PRIOR_LEVEL_RADIUS) -> np.ndarray:
+    """The cells whose centre lies within ``radius`` (x/y) of the sensor."""
+    dx = grid.x_centers - float(sensor_origin[0])
+    dy = grid.y_centers - float(sensor_origin[1])
+    return dx[:, None] * dx[:, None] + dy[None, :] * dy[None, :] <= radius * radius
 
 
 def _sensor_seeds(grid: HeightGrid, sensor_origin, ground, tolerance: float,

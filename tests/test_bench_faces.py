@@ -196,10 +196,7 @@ def test_a_face_at_an_angle_to_the_grid_is_terrain_as_one_along_it(yaw):
     p = np.asarray(cloud.positions, dtype=np.float64)
     p = p[~cloud.is_outlier & np.isfinite(p).all(axis=1)]
     face = (p[:, 0] > 4.0) & (p[:, 0] < 4.0 + run) & (p[:, 2] > -1.5)  # the face above
-    turn = math.radians(yaw)
-    rotation = np.array([[math.cos(turn), -math.sin(turn), 0.0],
-                         [math.sin(turn), math.cos(turn), 0.0], [0.0, 0.0, 1.0]])
-    _, inliers = segment_terrain(p @ rotation.T)
+    _, inliers = segment_terrain(p @ rotation_matrix(yaw_deg=yaw).T)
     found = np.zeros(len(p), bool)
     found[inliers] = True
     assert face.sum() > 5000

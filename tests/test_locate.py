@@ -10,15 +10,15 @@ import o3d_terrain
 from o3d_terrain.evaluation.metrics import segmentation_counts
 from o3d_terrain.locate import LOCATE_MIN_POINTS, locate_sensor
 from o3d_terrain.synthetic import Plane, Ramp, Scene, make_scene, sample_airborne, sample_lidar
+from o3d_terrain.synthetic.sensors import rotation_matrix
 
 #: a map frame in projected coordinates: the sensor's pose there
 SENSOR = np.array([512345.0, 4123456.0, 310.0])
-YAW = math.radians(57.0)
+YAW_DEG = 57.0
 
 
 def _to_map(p: np.ndarray) -> np.ndarray:
-    c, s = math.cos(YAW), math.sin(YAW)
-    return p @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T + SENSOR
+    return p @ rotation_matrix(yaw_deg=YAW_DEG).T + SENSOR
 
 
 @pytest.fixture(scope="module")
