@@ -8,7 +8,8 @@ surface by more than that noise, on both sides of it, over areas of about a cont
 
 The ground there is sampled by the mean height above the surface of the points of each
 :data:`MISFIT_CELL` cell (points higher than :data:`MISFIT_HIGH` left out). Per block of
-:data:`MISFIT_BLOCK` control spacings, the misfit scale is 1.4826 times the median depth of the
+:data:`MISFIT_BLOCK` control spacings (at least 7 cells a side, so that the
+:data:`MISFIT_MIN_CELLS` cells a block needs fit in its lower half), the misfit scale is 1.4826 times the median depth of the
 cells whose mean lies *below* the surface (obstacles never do, so low vegetation or cars
 covering a block do not raise it; a gully the surface bridges does). The mean of a cell of
 pure noise spreads less than its points do, so on terrain the surface follows the scale stays
@@ -71,7 +72,11 @@ MISFIT_FACE_SPREAD = 0.3
 MISFIT_BLOCK = 2.0
 #: a block's threshold replaces the global one only when at least this many times larger
 MISFIT_SIGNIFICANT = 2.0
-#: fewest cells below the surface that measure a block's misfit
+#: fewest cells below the surface that measure a block's misfit; a block is at least
+#: ceil(sqrt(2 x MISFIT_MIN_CELLS)) = 7 cells a side whatever the control spacing (about half of
+#: its cells lie below a surface that follows the terrain): with the 5 x 5-cell blocks of a
+#: 2.5 m spacing no block could ever widen (docs/algorithm.md, "A pit's faces and a raised
+#: road's top at the grid's axes")
 MISFIT_MIN_CELLS = 20
 #: in widened blocks, the threshold grows by this many control spacings x tan(slope): detail
 #: the surface cannot follow lies up to half a spacing from where the data pin it
@@ -235,6 +240,13 @@ def _dilate(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def _min_block_cells(min_cells: int) -> int:
+    """The fewest cells along a block's side: about half of a block's cells lie below a
+    surface that follows the terrain, so a block of at least 2 x ``min_cells`` cells can hold
+    the ``min_cells`` cells below it that measure its misfit (7 for the default 20)."""
+    return math.ceil(math.sqrt(2 * max(int(min_cells), 0)))
+
+
 def block_size(surface) -> float:
     """:data:`MISFIT_BLOCK` control spacings of a TerrainSurface (m, the larger axis)."""
     spacing = 0.0
@@ -258,9 +270,10 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
                       reach: float | None = None) -> np.ndarray:
     """Per-point thresholds (N,), the global ``threshold`` widened by the local misfit.
 
-    Per block of side ``block`` (m): s = 1.4826 x the median depth of the ``cell`` x ``cell``
-    cells whose mean height (``heights`` are z - S; points higher than ``high`` left out) is
-    below the surface, t = factor x s; where t >= significant x threshold and at least ``min_cells``
+    Per block of side ``block`` (m; at least ceil(sqrt(2 x ``min_cells``)) cells, so that the
+    ``min_cells`` cells fit in the half of a block below the surface): s = 1.4826 x the median
+    depth of the ``cell`` x ``cell`` cells whose mean height (``heights`` are z - S; points
+    higher than ``high`` left out) is below the surface, t = factor x s; where t >= significant x threshold and at least ``min_cells``
     cells count, the points of the block and of its 8 neighbours get min(t, high) (the largest
     such), elsewhere ``threshold``.
 
@@ -294,7 +307,7 @@ def widened_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: fl
     x_min, x_max, y_min, y_max, n_finite = _finite_extent(p, h)
     if n_finite == 0:
         return None
-    per_block = max(1, int(round(block / cell)))
+    per_block = max(1, int(round(block / cell)), _min_block_cells(min_cells))
     nx = int((x_max - x_min) / cell) + 1
     ny = int((y_max - y_min) / cell) + 1
     nbx = (nx + per_block - 1) // per_block

@@ -18,9 +18,9 @@ per axis, the refit solves once, so it takes the automatic layout up to
 fewer than the robust fit's), its knots placed as the robust fit's were (adaptive ones from
 the terrain cells). A wide frame's surface then follows terrain detail the robust layout's
 spacing could not (measured in docs/algorithm.md, "A finer layout for the refit"). On a
-vehicle's scan of steep relief (:func:`steep_share` at least :data:`STEEP_SHARE`) the caller
-gives the cap :data:`STEEP_REFINE_MAX_CONTROL_POINTS` (docs/algorithm.md, "A finer refit on
-steep relief").
+vehicle's scan of steep relief (:func:`steep_share` at least :data:`STEEP_SHARE`, or a long
+bench face: :data:`o3d_terrain.faces.FACE_RUN`) the caller gives the cap
+:data:`STEEP_REFINE_MAX_CONTROL_POINTS` (docs/algorithm.md, "A finer refit on steep relief").
 
 The sample of a cell is eq. 1 with the in-cell slope removed (the height of the least-squares
 plane of its terrain points at the cell centre minus their spread about it), at least that

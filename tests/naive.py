@@ -238,7 +238,8 @@ def misfit_thresholds(positions, heights, threshold, *, block, factor=3.5, high=
     x, y = p[:, 0], p[:, 1]
     x_min, x_max = x[finite].min(), x[finite].max()
     y_min, y_max = y[finite].min(), y[finite].max()
-    per_block = max(1, int(round(block / cell)))
+    # a block is at least sqrt(2 min_cells) cells a side: its lower half holds min_cells
+    per_block = max(1, int(round(block / cell)), int(np.ceil(np.sqrt(2 * min_cells))))
     nx = int((x_max - x_min) / cell) + 1
     ny = int((y_max - y_min) / cell) + 1
     nbx = (nx + per_block - 1) // per_block

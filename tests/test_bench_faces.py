@@ -13,8 +13,9 @@ from o3d_terrain import terrain as terrain_module
 from o3d_terrain.api import segment_terrain
 from o3d_terrain.faces import FACE_MAX_LIMIT_DEG, FACE_RUN, face_limit, face_run, planar_cells
 from o3d_terrain.grid import quantize_points
-from o3d_terrain.refine import steep_share
+from o3d_terrain.refine import REFINE_MAX_CONTROL_POINTS, steep_share
 from o3d_terrain.stages import RationalBSplineTerrain
+from o3d_terrain.stages import terrain as terrain_stage
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 from o3d_terrain.synthetic.scene import default_obstacles
 from o3d_terrain.synthetic.sensors import rotation_matrix
@@ -127,6 +128,23 @@ def test_a_pits_bench_faces_raise_the_automatic_limit(pit):
     assert given.max_slope_deg == 45.0 and given.face_run is None
 
 
+def test_bench_faces_give_the_refit_the_layout_of_steep_relief(pit, monkeypatch):
+    # the faces' berms and toes are slopes that change within a few metres: the refit takes
+    # the finer layout of steep relief for them, even where the share of the ground whose
+    # slope changes stays below STEEP_SHARE (0.193 on a pit seen from its first berm, 4 m up)
+    p, _ = pit
+    monkeypatch.setattr(terrain_stage, "STEEP_SHARE", 1.0)  # no share is steep relief
+    stage = RationalBSplineTerrain()
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+    fit = stage.fit(grid, p)
+    assert fit.face_run >= FACE_RUN
+    assert max(fit.surface.control_points.shape) > REFINE_MAX_CONTROL_POINTS
+    # without a face, a share below STEEP_SHARE keeps the refit's usual cap
+    monkeypatch.setattr(terrain_stage, "FACE_RUN", math.inf)
+    fit = stage.fit(grid, p)
+    assert max(fit.surface.control_points.shape) <= REFINE_MAX_CONTROL_POINTS
+
+
 def test_a_face_beside_the_sensor_does_not_tilt_its_ground_plane(rng):
     # level ground around the sensor and a 65-degree face 4 m ahead of it, inside the radius
     # the plane is fitted over: the face's cells slope more than 50 degrees from level and
@@ -220,6 +238,27 @@ def test_the_edges_of_a_raised_road_stay_terrain():
     edges = (np.abs(p[:, 1]) > 2.5) & (np.abs(p[:, 1]) < 4.5)
     assert found[edges].mean() > 0.9  # 0.072 before
     assert found.mean() > 0.95  # 0.820 before
+
+
+def test_the_top_of_a_raised_road_seen_from_a_cab_stays_terrain():
+    # a haul truck's lidar 4 m above a 6 m top, 2 m above the ground, flanks of 30 degrees
+    # along the grid's x axis: the refit's 40 control points (2.5 m apart) ring by about
+    # 0.1 m across the top, beyond the 0.13 m threshold. The misfit below the surface
+    # widens the threshold there only if a block can count its 20 cells: blocks of two
+    # spacings were 5 x 5 cells (0.75 of the top found), they are 7 x 7 at least (0.95)
+    run = 2.0 / math.tan(math.radians(30.0))
+    features = (Plane(), Ramp(0, -3 - run, 90, 30.0, run), Ramp(0, 3, 90, -30.0, run))
+    scene = Scene("embankment", features, (), region=(-50, 50, -50, 50))
+    cloud = sample_lidar(scene, beams=64, azimuth_steps=900, fov_deg=(-24.8, 2.0),
+                         sensor_height=4.0, seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    p = p[~cloud.is_outlier & np.isfinite(p).all(axis=1)]
+    _, inliers = segment_terrain(p)
+    found = np.zeros(len(p), bool)
+    found[inliers] = True
+    top = np.abs(p[:, 1]) < 3.0
+    assert top.sum() > 3000
+    assert found[top].mean() > 0.9
 
 
 def test_the_sensors_ground_height_is_the_level_it_stands_on(rng):

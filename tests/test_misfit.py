@@ -112,13 +112,29 @@ def test_thresholds_equal_the_plain_reference(rng):
     cloud[5::307, 1] = np.inf
     heights[7::401] = np.nan
     widened = 0
-    for cell, block in ((1.0, 12.0), (0.5, 7.0), (0.7, 12.0)):
+    for cell, block in ((1.0, 12.0), (0.5, 7.0), (0.7, 12.0), (1.0, 3.0)):
         for threshold in (0.1, 0.3):
             got = misfit_thresholds(cloud, heights, threshold, block=block, cell=cell)
             expected = naive.misfit_thresholds(cloud, heights, threshold, block=block, cell=cell)
             np.testing.assert_array_equal(got, expected)
             widened += int((got > threshold).sum())
     assert widened > 0
+
+
+def test_a_fine_control_spacing_still_measures_the_misfit(rng):
+    """Blocks of two control spacings at a 1.5 m spacing (a 40 x 40 refit over 60 m) would be
+    3 x 3 cells, of which about half lie below a surface that follows the terrain: never the
+    20 cells a block needs. Blocks are 7 cells a side at least, so a gully the surface bridges
+    widens the threshold at any spacing, and flat ground still keeps the global one."""
+    n = 60 * 40 * 20
+    cloud = np.c_[rng.uniform(0, 60, n), rng.uniform(0, 40, n), np.zeros(n)]
+    flat = rng.normal(0, 0.02, n)
+    gully = (cloud[:, 0] >= 20) & (cloud[:, 0] < 24)  # 4 m wide, 0.6 m deep
+    for block in (3.0, 10.0):
+        assert widened_thresholds(cloud, flat, 0.1, block=block) is None
+        got = widened_thresholds(cloud, flat - 0.6 * gully, 0.1, block=block)
+        assert got is not None and np.all(got[gully] > 0.5)
+        assert np.all(got[cloud[:, 0] > 40] == 0.1)  # far from the gully: the global one
 
 
 def test_widened_thresholds_is_none_exactly_when_no_point_is_widened():

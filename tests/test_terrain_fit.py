@@ -647,4 +647,6 @@ def test_a_top_down_scan_gets_the_finer_layout_and_follows_a_berm():
     berm = np.abs(cloud.world_positions[:, 1] - 6.0) < 0.5
     err_vehicle = np.sqrt(np.mean((vehicle(p[berm, 0], p[berm, 1]) - true_z[berm]) ** 2))
     err_top_down = np.sqrt(np.mean((top_down(p[berm, 0], p[berm, 1]) - true_z[berm]) ** 2))
-    assert err_top_down < 0.7 * err_vehicle  # measured 0.53 -> 0.30 m
+    # measured 0.39 -> 0.31 m (0.53 -> 0.30 m before the misfit's blocks held 7 cells: the
+    # vehicle's refit now takes more of the berm's flanks)
+    assert err_top_down < 0.85 * err_vehicle

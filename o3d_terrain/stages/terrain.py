@@ -74,8 +74,8 @@ class RationalBSplineTerrain(Stage):
              "2 cells (at least 1 m), at most 32 per axis (48 on a top-down scan: an airborne "
              "tile with no points near sensor_origin), or one every 6 m (at most 96) where "
              "that would leave them farther apart; the refit (refine) then takes up to 40 "
-             "per axis (64 on a vehicle's scan of steep relief); a layout given here is the "
-             "refit's too",
+             "per axis (64 on a vehicle's scan of steep relief or of bench faces); a layout "
+             "given here is the refit's too",
     )
     degree: int = option(3, rule=Range(1, 5), help="polynomial degree of the B-spline basis")
     method: str = option("robust", choices=METHODS,
@@ -228,7 +228,12 @@ class RationalBSplineTerrain(Stage):
             fit = fit_grid_detailed(grid, **dict(options, max_slope_deg=STEEP_MAX_SLOPE_DEG))
         elif vehicle and refit and self.control_points is None:
             share = steep_share(fit.surface, grid)  # the refit's layout: the final surface's
-        steep = share is not None and share >= STEEP_SHARE
+        # steep relief for the refit's layout: a share of the ground whose slope changes, or a
+        # long bench face (its berms and toes are slopes that change within a few metres,
+        # over too few cells to make a share; docs/algorithm.md, "A pit's faces and a raised
+        # road's top at the grid's axes")
+        faces = run is not None and run >= FACE_RUN
+        steep = (share is not None and share >= STEEP_SHARE) or faces
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         fit = dataclasses.replace(fit, relief_share=share, face_run=run)
         if not refit:
