@@ -114,13 +114,13 @@ LINE_POINTS = 60_000
 AUTO_RANGE_BINS = 8
 #: ... whose robust spread follows s = a + c r^2 (coefficient of determination at least
 #: this) ...
-AUTO_RANGE_FIT = 0.6
+AUTO_RANGE_FIT = 0.4
 #: ... and grows by at least this factor from the narrowest bin to the farthest (which is at
 #: least :data:`AUTO_RANGE_TOP` times the widest): a sensor whose noise grows with range
 #: squared (stereo), not a lidar, whose spread below the surface grows only where sparse rings
 #: leave the ground unsampled and then levels off (docs/algorithm.md, "A threshold that grows
 #: with range, from the data")
-AUTO_RANGE_GROWTH = 5.0
+AUTO_RANGE_GROWTH = 3.0
 #: ... the farthest bin's spread at least this share of the widest bin's: a terrain feature
 #: the surface misses at one range (a ditch) widens that bin alone
 AUTO_RANGE_TOP = 0.7
@@ -130,7 +130,14 @@ AUTO_RANGE_FLOOR = 0.01
 #: ... and from each bin to the next it grows at most this many times what the bins' r^2
 #: explains: noise growing with range grows gradually, a face or a ditch the surface misses
 #: at one range makes the spread jump from one bin to the next
-AUTO_RANGE_STEP = 2.5
+AUTO_RANGE_STEP = 3.0
+#: a scan whose lines lie at least this far apart (deg, :func:`scan_line_spacing`) is a rotating
+#: lidar's, whose noise does not grow with range squared: no range term (its spread below the
+#: surface grows where sparse rings leave the ground unsampled, which the criteria above,
+#: loosened for stereo clouds, could take for a stereo camera's noise; docs/algorithm.md, "A
+#: threshold that grows with range, from the data", its paragraph "Scan lines, and looser
+#: criteria for the other clouds")
+AUTO_RANGE_LINES = 0.3
 #: ... measured on every k-th of those points, k = max(1, count // this) (a few thousand
 #: points give the 8 medians; sorting all of a lidar frame's would cost milliseconds)
 AUTO_RANGE_SAMPLE = 2048
@@ -211,7 +218,8 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
                            sensor_origin=(0.0, 0.0, 0.0), *,
                            factor: float = AUTO_THRESHOLD_FACTOR, bins: int = AUTO_RANGE_BINS,
                            fit: float = AUTO_RANGE_FIT, growth: float = AUTO_RANGE_GROWTH,
-                           min_points: int = SENSOR_GROUND_MIN_POINTS) -> float:
+                           min_points: int = SENSOR_GROUND_MIN_POINTS,
+                           line_spacing: float | None = None) -> float:
     """The automatic threshold's growth with range squared (1/m), from the data: 0 for a
     sensor whose noise does not grow with range.
 
@@ -231,7 +239,9 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     :data:`AUTO_RANGE_HIGH`). Otherwise 0: a lidar's spread below the surface is flat with range,
     or grows only where sparse rings leave the ground unsampled and then levels off. 0 too
     when fewer than ``min_points`` of those points lie within
-    :data:`SENSOR_GROUND_RADIUS` of the sensor (a sensor outside the cloud: airborne tiles).
+    :data:`SENSOR_GROUND_RADIUS` of the sensor (a sensor outside the cloud: airborne tiles),
+    and on a rotating lidar's scan: lines at least :data:`AUTO_RANGE_LINES` apart
+    (``line_spacing``, the :func:`scan_line_spacing` of ``positions`` when the caller has it).
     docs/algorithm.md, "A threshold that grows with range, from the data"."""
     p = _positions(positions)
     h = np.asarray(heights, dtype=np.float64)
@@ -242,6 +252,10 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     below, r2 = below[keep], r2[keep]
     if below.size < bins * min_points or \
             np.count_nonzero(r2 <= SENSOR_GROUND_RADIUS ** 2) < min_points:
+        return 0.0
+    if line_spacing is None:
+        line_spacing = scan_line_spacing(p, sensor_origin)
+    if line_spacing >= AUTO_RANGE_LINES:
         return 0.0
     order = np.argsort(r2, kind="stable")
     per_bin = order.size // bins
@@ -477,7 +491,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         behind = 0.0
         if foot_behind > 0 and spacing > 0 and range_coefficient == 0 and (
                 measured_range or auto_range_coefficient(p, h, auto_threshold(h),
-                                                         sensor_origin) == 0):
+                                                         sensor_origin,
+                                                         line_spacing=spacing) == 0):
             behind = foot_behind
         mark_object_feet(labels, h, p, foot_height=foot_height, cell=foot_cell,
                          noise_depth=below_threshold, line_spacing=spacing,

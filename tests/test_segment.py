@@ -328,6 +328,31 @@ def test_automatic_range_term_only_where_the_noise_grows_with_range():
     assert labels[-1] == TerrainLabel.OBSTACLE
 
 
+def test_the_range_term_of_a_stereo_cloud_and_of_a_rotating_lidar():
+    """Noise that grows by 4 x from 3 m to 30 m along r^2 (a stereo cloud of a forest, whose
+    near ground is rougher than the open ground ahead) gives a range term; a spread growing
+    with r^2 on a rotating lidar's rings (lines 0.4 degrees apart, 1.8 m up) gives none: a
+    lidar's spread below the surface grows where its rings thin out, not with its noise."""
+    from o3d_terrain.segment import AUTO_RANGE_LINES, auto_range_coefficient, scan_line_spacing
+
+    rng = np.random.default_rng(3)
+    n = 40_000
+    r = rng.uniform(3.0, 30.0, n)
+    a = rng.uniform(-0.6, 0.6, n)
+    stereo = np.c_[r * np.cos(a), r * np.sin(a), np.full(n, -1.8)]
+    noise = rng.normal(0, 0.015 + 5e-5 * r**2)
+    assert scan_line_spacing(stereo) < AUTO_RANGE_LINES
+    assert auto_range_coefficient(stereo, noise, 0.13) > 0.0
+    elevation = np.radians(rng.integers(0, 67, n) * 0.4 - 30.0)  # the rings on flat ground
+    ring_r = 1.8 / np.tan(-elevation)
+    keep = (ring_r > 3.0) & (ring_r < 30.0)
+    lidar = np.c_[ring_r * np.cos(a), ring_r * np.sin(a), np.full(n, -1.8)][keep]
+    ring_noise = rng.normal(0, 0.01 + 1e-4 * ring_r[keep]**2)  # 4.4 x from 3.4 m to 20 m
+    assert scan_line_spacing(lidar) >= AUTO_RANGE_LINES
+    assert auto_range_coefficient(lidar, ring_noise, 0.13) == 0.0
+    assert auto_range_coefficient(lidar, ring_noise, 0.13, line_spacing=0.0) > 0.0
+
+
 def test_automatic_range_term_ignores_a_jump_and_a_wide_near_bin(monkeypatch):
     """The spread below the surface that jumps at one range (a face the surface misses, here a
     lidar's constant noise plus 0.3 m depth beyond 20 m) is no noise growing with range; a
