@@ -9,10 +9,11 @@ surface by more than that noise, on both sides of it, over areas of about a cont
 The ground there is sampled by the mean height above the surface of the points of each
 :data:`MISFIT_CELL` cell (points higher than :data:`MISFIT_HIGH` left out). Per block of
 :data:`MISFIT_BLOCK` control spacings (at least 7 cells a side, so that the
-:data:`MISFIT_MIN_CELLS` cells a block needs fit in its lower half), the misfit scale is 1.4826 times the median depth of the
-cells whose mean lies *below* the surface (obstacles never do, so low vegetation or cars
-covering a block do not raise it; a gully the surface bridges does). The mean of a cell of
-pure noise spreads less than its points do, so on terrain the surface follows the scale stays
+:data:`MISFIT_MIN_CELLS` cells a block needs fit in its lower half), the misfit scale is
+1.4826 times the median depth of the cells whose mean lies *below* the surface (obstacles
+never do, so low vegetation or cars covering a block do not raise it; a gully the surface
+bridges does). The mean of a cell of pure noise spreads less than its points do, so on
+terrain the surface follows the scale stays
 below the global one whatever the density (the lowest point of a cell would not: its depth
 grows with the number of points in the cell). When that scale gives a
 threshold at least :data:`MISFIT_SIGNIFICANT` times the global one (the median of 20 or more
@@ -273,9 +274,9 @@ def misfit_thresholds(positions: np.ndarray, heights: np.ndarray, threshold: flo
     Per block of side ``block`` (m; at least ceil(sqrt(2 x ``min_cells``)) cells, so that the
     ``min_cells`` cells fit in the half of a block below the surface): s = 1.4826 x the median
     depth of the ``cell`` x ``cell`` cells whose mean height (``heights`` are z - S; points
-    higher than ``high`` left out) is below the surface, t = factor x s; where t >= significant x threshold and at least ``min_cells``
-    cells count, the points of the block and of its 8 neighbours get min(t, high) (the largest
-    such), elsewhere ``threshold``.
+    higher than ``high`` left out) is below the surface, t = factor x s; where t >= significant
+    x threshold and at least ``min_cells`` cells count, the points of the block and of its 8
+    neighbours get min(t, high) (the largest such), elsewhere ``threshold``.
 
     grade: optional callable (x, y) -> |grad S| (the surface's tangent of slope) at the points
         (:func:`o3d_terrain.segment.segment_points` measures it from the ground under the
