@@ -20,6 +20,7 @@ column can.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from enum import IntEnum
 
 import numpy as np
@@ -219,7 +220,7 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
                            factor: float = AUTO_THRESHOLD_FACTOR, bins: int = AUTO_RANGE_BINS,
                            fit: float = AUTO_RANGE_FIT, growth: float = AUTO_RANGE_GROWTH,
                            min_points: int = SENSOR_GROUND_MIN_POINTS,
-                           line_spacing: float | None = None) -> float:
+                           line_spacing: float | Callable[[], float] | None = None) -> float:
     """The automatic threshold's growth with range squared (1/m), from the data: 0 for a
     sensor whose noise does not grow with range.
 
@@ -241,7 +242,8 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
     when fewer than ``min_points`` of those points lie within
     :data:`SENSOR_GROUND_RADIUS` of the sensor (a sensor outside the cloud: airborne tiles),
     and on a rotating lidar's scan: lines at least :data:`AUTO_RANGE_LINES` apart
-    (``line_spacing``, the :func:`scan_line_spacing` of ``positions`` when the caller has it).
+    (``line_spacing``: the :func:`scan_line_spacing` of ``positions`` when the caller has it,
+    or a function that finds it, asked only past the tests above; None = found here).
     docs/algorithm.md, "A threshold that grows with range, from the data"."""
     p = _positions(positions)
     h = np.asarray(heights, dtype=np.float64)
@@ -255,6 +257,8 @@ def auto_range_coefficient(positions, heights: np.ndarray, threshold: float,
         return 0.0
     if line_spacing is None:
         line_spacing = scan_line_spacing(p, sensor_origin)
+    elif callable(line_spacing):
+        line_spacing = line_spacing()
     if line_spacing >= AUTO_RANGE_LINES:
         return 0.0
     order = np.argsort(r2, kind="stable")
@@ -442,10 +446,18 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
     use_misfit = threshold is None and misfit and isinstance(surface, TerrainSurface)
     block = block_size(surface) if use_misfit else 0.0
+    found_spacing = []  # scan_line_spacing of the cloud, found once when first asked
+
+    def line_spacing() -> float:
+        if not found_spacing:
+            found_spacing.append(scan_line_spacing(p, sensor_origin))
+        return found_spacing[0]
+
     if threshold is None:
         threshold = auto_threshold(h)
         if automatic_range:
-            range_coefficient = auto_range_coefficient(p, h, threshold, sensor_origin)
+            range_coefficient = auto_range_coefficient(p, h, threshold, sensor_origin,
+                                                       line_spacing=line_spacing)
             range_high = AUTO_RANGE_HIGH
         if use_misfit:
             local = widened_thresholds(p, h, threshold, block=block,
@@ -484,7 +496,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         # a finer layout on a top-down scan")
         _top_down_planes(labels, h, p, threshold, block)
     if foot_height > 0:
-        spacing = scan_line_spacing(p, sensor_origin) if lines_rules and in_cloud else 0.0
+        spacing = line_spacing() if lines_rules and in_cloud else 0.0
         # behind the marks: on a lidar's scan (lines, and noise that does not grow with range:
         # a stereo pair's depth noise would put ground in front of an object behind it),
         # asked of the data also when the caller set the threshold or its range term

@@ -514,10 +514,14 @@ def _level_plane(grid: HeightGrid, sensor_origin, ground=None) -> np.ndarray | N
 
 def _near_sensor(grid: HeightGrid, sensor_origin,
                  radius: float = PRIOR_LEVEL_RADIUS) -> np.ndarray:
-    """The cells whose centre lies within ``radius`` (x/y) of the sensor."""
-    dx = grid.x_centers - float(sensor_origin[0])
-    dy = grid.y_centers - float(sensor_origin[1])
-    return dx[:, None] * dx[:, None] + dy[None, :] * dy[None, :] <= radius * radius
+    """The cells whose centre lies within ``radius`` (x/y) of the sensor (the test of
+    :func:`_sensor_seeds`, on the block of :func:`_block_around`)."""
+    near = np.zeros(grid.shape, bool)
+    around = _block_around(grid, sensor_origin, radius)
+    if around is not None:
+        block, dx, dy = around
+        near[block] = dx * dx + dy * dy <= radius * radius
+    return near
 
 
 def _sensor_seeds(grid: HeightGrid, sensor_origin, ground, tolerance: float,

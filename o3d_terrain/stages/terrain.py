@@ -208,10 +208,12 @@ class RationalBSplineTerrain(Stage):
         # refit's automatic layout grows (docs/algorithm.md, "Bench faces", "A steeper slope
         # limit on strong relief", "A finer refit on steep relief")
         run = None
+        faces = False  # a long bench face in the scan
         if vehicle and auto_slope:
             gx, gy = sensor_ground_plane(grid, self.sensor_origin)
             run, tilt = face_run(planar_cells(grid, positions), (-gx, -gy, 1.0))
-            if run >= FACE_RUN:
+            faces = run >= FACE_RUN
+            if faces:
                 options["max_slope_deg"] = face_limit(tilt)
         coarse_share = []
 
@@ -220,7 +222,7 @@ class RationalBSplineTerrain(Stage):
             return coarse_share[-1] >= STEEP_LIMIT_SHARE
 
         # the relief rule decides where no face did
-        relief_rule = run is not None and run < FACE_RUN
+        relief_rule = run is not None and not faces
         fit = fit_grid_detailed(grid, **options, stop_after_coarse=strong_relief if relief_rule
                                 else None)
         share = coarse_share[-1] if coarse_share else None
@@ -232,7 +234,6 @@ class RationalBSplineTerrain(Stage):
         # long bench face (its berms and toes are slopes that change within a few metres,
         # over too few cells to make a share; docs/algorithm.md, "A pit's faces and a raised
         # road's top at the grid's axes")
-        faces = run is not None and run >= FACE_RUN
         steep = (share is not None and share >= STEEP_SHARE) or faces
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
         fit = dataclasses.replace(fit, relief_share=share, face_run=run)
