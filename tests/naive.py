@@ -17,8 +17,11 @@ def grid_quantize(positions, x_min, y_min, cell_size, nx, ny, min_points=1, fill
     for x, y, z in positions:
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             continue
-        fx = (x - x_min) / cell_size
-        fy = (y - y_min) / cell_size
+        with np.errstate(over="ignore"):
+            fx = (x - x_min) / cell_size
+            fy = (y - y_min) / cell_size
+        if not (math.isfinite(fx) and math.isfinite(fy)):
+            continue  # a coordinate too large for the grid's scale: skipped as non-finite
         ix, iy = int(math.floor(fx)), int(math.floor(fy))
         if ix == nx and fx <= nx:
             ix = nx - 1
@@ -144,8 +147,11 @@ def grid_layer_statistics(positions, x_min, y_min, cell_size, nx, ny, layer):
     for x, y, z in positions:
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             continue
-        fx = (x - x_min) / cell_size
-        fy = (y - y_min) / cell_size
+        with np.errstate(over="ignore"):
+            fx = (x - x_min) / cell_size
+            fy = (y - y_min) / cell_size
+        if not (math.isfinite(fx) and math.isfinite(fy)):
+            continue  # a coordinate too large for the grid's scale: skipped as non-finite
         ix, iy = int(math.floor(fx)), int(math.floor(fy))
         if ix == nx and fx <= nx:
             ix = nx - 1

@@ -80,6 +80,34 @@ def test_points_on_cell_edges_match_reference(rng, cell):
     assert grid.skipped_outside > 0 and grid.count.sum() + grid.skipped_outside == x.size
 
 
+
+@pytest.mark.parametrize("cell", [0.5, 0.7])
+def test_scan_order_runs_and_odd_values_match_reference(rng, cell):
+    """Points in runs of one cell (a scan's order, summed in registers by the kernel) with
+    non-finite x, y or z, values far outside and on the far edges among them: the cells,
+    the sums and the skipped counts of the plain reference."""
+    pts = rng.uniform(0, 6 * cell, size=(600, 3))
+    pts = pts[np.lexsort((np.floor(pts[:, 1] / cell), np.floor(pts[:, 0] / cell)))]
+    odd = np.array([np.nan, np.inf, -np.inf, 1e308, -1e308, -1e-300, 6 * cell, -0.0])
+    for column in range(3):
+        rows = rng.choice(len(pts), 40, replace=False)
+        # z: non-finite values only (huge ones would overflow the cells' sums, in both)
+        pts[rows, column] = rng.choice(odd if column < 2 else odd[[0, 1, 2, 7]], 40)
+    region = (0.0, 6 * cell, 0.0, 6 * cell)
+    grid = quantize_points(pts, cell_size=cell, region=region)
+    z, count, state, lowest, highest, mean = naive_quantize(pts, 0.0, 0.0, cell, grid.nx,
+                                                            grid.ny)
+    for name, expected in (("z", z), ("count", count), ("state", state), ("lowest", lowest),
+                           ("highest", highest), ("mean", mean)):
+        np.testing.assert_array_equal(getattr(grid, name), expected, err_msg=name)
+    finite = np.isfinite(pts).all(axis=1)
+    # a finite x whose distance from the region overflows counts as non-finite, as in _cell
+    with np.errstate(over="ignore", invalid="ignore"):
+        scaled = np.abs(pts[:, :2] - np.array(region)[[0, 2]]) / cell
+    nonfinite = ~finite | ~np.isfinite(scaled).all(axis=1)
+    assert grid.skipped_nonfinite == nonfinite.sum()
+    assert grid.skipped_nonfinite + grid.skipped_outside + count.sum() == len(pts)
+
 def test_equation_one_on_a_single_cell():
     z = np.array([1.0, 2.0, 3.0, 10.0])
     pts = np.column_stack([np.full(4, 0.1), np.full(4, 0.1), z])

@@ -349,6 +349,141 @@ def _fill_empty(height, state, nx, ny):
 
 
 @numba.njit(cache=True)
+def _cells_of(flat, x_min, y_min, cell_size, inverse, nx, ny, cells):
+    """Into ``cells``: :func:`_cell` of each point of the flat (3 N) rows ``flat`` (x, y, z of
+    point k at 3k, 3k + 1, 3k + 2), -2 also where z is not finite; with ``inverse`` > 0 the
+    coordinates scaled by it (:func:`_scaled_cell`). Written without branches, which lets the
+    compiler vectorise the loop: a point inside the grid (0 <= f <= n per axis, NaN and
+    infinities fail it) is in cell floor(f) (= int(f) there), the far edge f = n in the last;
+    the same cells as :func:`_scaled_cell` (tests/test_grid.py)."""
+    fnx = float(nx)
+    fny = float(ny)
+    for k in range(cells.shape[0]):
+        if inverse > 0.0:
+            fx = (flat[3 * k] - x_min) * inverse
+            fy = (flat[3 * k + 1] - y_min) * inverse
+        else:
+            fx = (flat[3 * k] - x_min) / cell_size
+            fy = (flat[3 * k + 1] - y_min) / cell_size
+        inside = (fx >= 0.0) & (fx <= fnx) & (fy >= 0.0) & (fy <= fny)
+        finite = (abs(fx) < math.inf) & (abs(fy) < math.inf) & (abs(flat[3 * k + 2]) < math.inf)
+        ix = min(np.int32(fx if inside else 0.0), nx - 1)
+        iy = min(np.int32(fy if inside else 0.0), ny - 1)
+        cells[k] = ix * ny + iy if inside & finite else (-1 if finite else -2)
+
+
+@numba.njit(cache=True)
+def _cell_sums(flat, cells, m):
+    """Per cell of ``cells`` (one per point, -1 outside, -2 non-finite) of the flat rows
+    ``flat``: the number of points, the sum, the lowest and the highest of their z (sums in
+    point order; inf, -inf in cells without points), then the numbers of non-finite and of
+    outside points. A run of consecutive points in one cell (the usual case in a scan's or
+    an image's order) is summed in registers and stored once at its end: the same additions
+    in the same order, without a store and a reload per point (which chain one point's
+    update to the next one's). The four per-cell values are kept side by side, so that a
+    point touches one cache line."""
+    sums = np.zeros((m, 4))  # count, total, lowest, highest
+    for c in range(m):
+        sums[c, 2] = math.inf
+        sums[c, 3] = -math.inf
+    nonfinite = 0
+    outside = 0
+    current = -1
+    k_n = k_t = k_lo = k_hi = 0.0  # the sums of the current run's cell
+    for k in range(cells.shape[0]):
+        c = cells[k]
+        if c < 0:
+            nonfinite += c == -2
+            outside += c == -1
+            continue
+        if c != current:
+            if current >= 0:
+                sums[current, 0] = k_n
+                sums[current, 1] = k_t
+                sums[current, 2] = k_lo
+                sums[current, 3] = k_hi
+            current = c
+            k_n = sums[c, 0]
+            k_t = sums[c, 1]
+            k_lo = sums[c, 2]
+            k_hi = sums[c, 3]
+        v = flat[3 * k + 2]
+        k_n += 1.0
+        k_t += v
+        k_lo = min(k_lo, v)  # branch-free (cells hold few points: branches mispredict)
+        k_hi = max(k_hi, v)
+    if current >= 0:
+        sums[current, 0] = k_n
+        sums[current, 1] = k_t
+        sums[current, 2] = k_lo
+        sums[current, 3] = k_hi
+    count = np.empty(m, np.int64)
+    total = np.empty(m)
+    lowest = np.empty(m)
+    highest = np.empty(m)
+    for c in range(m):
+        count[c] = np.int64(sums[c, 0])  # exact: counts stay far below 2^53
+        total[c] = sums[c, 1]
+        lowest[c] = sums[c, 2]
+        highest[c] = sums[c, 3]
+    return count, total, lowest, highest, nonfinite, outside
+
+
+@numba.njit(cache=True)
+def _cell_spreads(flat, cells, mean, lowest, layer, use_layer):
+    """Per cell: the sum of the squared deviations of its points' z from ``mean``; with
+    ``use_layer`` also the number and the sum of the z within [lowest, lowest + layer] and
+    the lowest z above that (inf where none; empty arrays otherwise). Runs of consecutive
+    points in one cell in registers, as :func:`_cell_sums`."""
+    m = mean.shape[0]
+    ml = m if use_layer else 0
+    squares = np.zeros(m)
+    layer_count = np.zeros(ml, np.int64)
+    layer_sum = np.zeros(ml)
+    layer_above = np.full(ml, math.inf)
+    current = -1
+    k_sq = k_ls = 0.0
+    k_lc = 0
+    k_la = math.inf
+    k_mean = k_top = 0.0  # the current cell's mean and lowest + layer
+    for k in range(cells.shape[0]):
+        c = cells[k]
+        if c < 0:
+            continue
+        if c != current:
+            if current >= 0:
+                squares[current] = k_sq
+                if use_layer:
+                    layer_count[current] = k_lc
+                    layer_sum[current] = k_ls
+                    layer_above[current] = k_la
+            current = c
+            k_sq = squares[c]
+            k_mean = mean[c]
+            if use_layer:
+                k_lc = layer_count[c]
+                k_ls = layer_sum[c]
+                k_la = layer_above[c]
+                k_top = lowest[c] + layer
+        v = flat[3 * k + 2]
+        d = v - k_mean
+        k_sq += d * d
+        if use_layer:
+            if v <= k_top:
+                k_lc += 1
+                k_ls += v
+            else:
+                k_la = min(k_la, v)
+    if current >= 0:
+        squares[current] = k_sq
+        if use_layer:
+            layer_count[current] = k_lc
+            layer_sum[current] = k_ls
+            layer_above[current] = k_la
+    return squares, layer_count, layer_sum, layer_above
+
+
+@numba.njit(cache=True)
 def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty, layer=0.0,
              inverse=0.0, plane=False, max_grade=1.0, tilt_spread=0.0):
     """Per-cell height Z = max(min z, mean z - sigma) (eq. 1), counts, state, lowest, highest
@@ -382,54 +517,19 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     m = nx * ny
     n = positions.shape[0]
     cells = np.empty(n, np.int32)  # m <= MAX_CELLS of o3d_terrain.grid, far below 2^31
-    count = np.zeros(m, np.int64)
-    total = np.zeros(m)
-    lowest = np.full(m, np.inf)
-    highest = np.full(m, -np.inf)
-    # the cells first, in a loop of their own (branch-free arithmetic the compiler
-    # vectorises: twice as fast as finding each cell in the loop that updates it)
-    for k in range(n):
-        if inverse > 0.0:
-            c = _scaled_cell((positions[k, 0] - x_min) * inverse,
-                             (positions[k, 1] - y_min) * inverse, nx, ny)
-        else:
-            c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
-        cells[k] = c if math.isfinite(positions[k, 2]) else -2
-    nonfinite = 0
-    outside = 0
-    for k in range(n):
-        c = cells[k]
-        if c < 0:
-            nonfinite += c == -2
-            outside += c == -1
-            continue
-        v = positions[k, 2]
-        count[c] += 1
-        total[c] += v
-        lowest[c] = min(lowest[c], v)  # branch-free (cells hold few points: branches mispredict)
-        highest[c] = max(highest[c], v)
+    # the rows as one flat (3 N) array: x, y, z of point k at 3k, 3k + 1, 3k + 2 (indexing
+    # the 2-D array goes through its run-time strides, which keeps these loops scalar)
+    flat = positions.reshape(3 * n)
+    # the cells first, in a loop of their own (branch-free: the compiler vectorises it)
+    _cells_of(flat, x_min, y_min, cell_size, inverse, nx, ny, cells)
+    count, total, lowest, highest, nonfinite, outside = _cell_sums(flat, cells, m)
     mean = np.zeros(m)
     for c in range(m):
         if count[c] > 0:
             mean[c] = total[c] / count[c]
-    squares = np.zeros(m)
     use_layer = layer > 0.0
-    layer_count = np.zeros(m if use_layer else 0, np.int64)
-    layer_sum = np.zeros(m if use_layer else 0)
-    layer_above = np.full(m if use_layer else 0, np.inf)
-    for k in range(n):
-        c = cells[k]
-        if c < 0:
-            continue
-        v = positions[k, 2]
-        d = v - mean[c]
-        squares[c] += d * d
-        if use_layer:
-            if v <= lowest[c] + layer:
-                layer_count[c] += 1
-                layer_sum[c] += v
-            else:
-                layer_above[c] = min(layer_above[c], v)
+    squares, layer_count, layer_sum, layer_above = _cell_spreads(flat, cells, mean, lowest,
+                                                                 layer, use_layer)
     height = np.zeros(m)
     state = np.zeros(m, np.uint8)
     for c in range(m):
