@@ -6,8 +6,10 @@
 2. The paper's configuration: 34 m x 22 m, 0.5 m cells, 25 x 25 control points, degree 3,
    300k synthetic points: grid + fit + slope grid, each step timed.
 
-Run: .venv/bin/python benchmarks/bench_terrain.py [--repeat N] [--threads N]
-(``--threads``: numba threads for the kernels that split work over threads; default: numba's.)
+Run: .venv/bin/python benchmarks/bench_terrain.py [--repeat N] [--threads N] [--keep-freed-memory]
+(``--threads``: numba threads for the kernels that split work over threads; default: numba's.
+``--keep-freed-memory``: call ``o3d_terrain.keep_freed_memory()`` first, as a program that
+runs frame after frame does; without it the process keeps glibc's default allocator.)
 The machine's load average is printed with the figures: on a shared machine they are noisy.
 Every figure is the median wall time with, in brackets, the median CPU time of the calling
 thread (less sensitive to other jobs when the kernels run on one thread).
@@ -23,6 +25,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from o3d_terrain import keep_freed_memory
 from o3d_terrain.api import segment_terrain
 from o3d_terrain.frame import as_frame
 from o3d_terrain.grid import quantize_points
@@ -68,10 +71,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=15)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--keep-freed-memory", action="store_true")
     args = parser.parse_args()
     if args.threads:
         numba.set_num_threads(args.threads)
-    print(f"numba threads {numba.get_num_threads()}, {load_text()}")
+    kept = args.keep_freed_memory and keep_freed_memory()
+    print(f"numba threads {numba.get_num_threads()}, allocator "
+          f"{'keeps freed memory' if kept else 'default'}, {load_text()}")
 
     scan = data_root() / "kitti_seq00_lidar" / "velodyne" / "000000.bin"
     if scan.exists():

@@ -33,6 +33,7 @@ from .level import level_cloud
 from .obstacles import DetectedObstacle, ObstacleSet, detect_obstacles
 from .traversability import CostMap, VehicleProfile, load_vehicle_profile, traversability_cost
 from .tracking import ObstacleTracker
+from ._malloc import keep_freed_memory
 
 __all__ = [
     "__version__",
@@ -46,5 +47,5 @@ __all__ = [
     "level_cloud",
     "DetectedObstacle", "ObstacleSet", "detect_obstacles",
     "CostMap", "VehicleProfile", "load_vehicle_profile", "traversability_cost",
-    "ObstacleTracker",
+    "ObstacleTracker", "keep_freed_memory",
 ]

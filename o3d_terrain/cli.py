@@ -13,6 +13,7 @@ from typing import Sequence
 
 from . import __version__
 from .docgen import describe_text, list_text
+from ._malloc import keep_freed_memory
 from .errors import ConfigError, O3DTerrainError, Problem, did_you_mean
 from .pipeline import load_pipeline
 from .stages import STAGES
@@ -73,6 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_CONFIG
+    keep_freed_memory()  # this process runs frame after frame: o3d_terrain/_malloc.py
     try:
         if args.command == "run":
             return _run(args, verbose)
