@@ -100,11 +100,17 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
     elif range_noise is not None:
         noise["range_noise"] = range_noise
     terrain = _build(RationalBSplineTerrain,
-                     control_points=None if control_points is None else tuple(control_points),
+                     control_points=_sequence(control_points),
                      degree=degree, method=method, smoothing=smoothing,
                      terrain_prior=terrain_prior, max_slope_deg=max_slope_deg,
                      cell_plane=cell_plane, refine=refine, knots=knots, **noise)
     return quantize, terrain
+
+
+def _sequence(value):
+    """A list or array option as a tuple (the stage cache keys on its repr); anything else, a
+    single number for both axes among it, as given for the stage to check."""
+    return tuple(value) if isinstance(value, (list, np.ndarray)) else value
 
 
 def _origin(sensor_origin) -> tuple[float, ...]:
@@ -183,7 +189,7 @@ def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *,
 
 
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
-                control_points: Sequence[int] | None = None, degree: int = 3,
+                control_points: Sequence[int] | int | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,
                 terrain_prior: bool = True, range_noise: RangeNoise | float | None = None,
                 sensor_origin: Sequence[float] | None = None,
@@ -193,7 +199,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
-    cell_size: grid cell side (m). control_points: per axis; None = about one every 2 cells
+    cell_size: grid cell side (m). control_points: per axis (one int: both); None = about one every 2 cells
     (at least 1 m), at most 32 per axis (48 on a top-down scan, no points near
     ``sensor_origin``; one every 6 m on tiles wider than that allows), the refit (``refine``)
     up to 40 per axis (:data:`o3d_terrain.refine.REFINE_MAX_CONTROL_POINTS`; 64 on a
@@ -249,7 +255,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
 
 
 def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
-                    cell_size: float = 0.5, control_points: Sequence[int] | None = None,
+                    cell_size: float = 0.5, control_points: Sequence[int] | int | None = None,
                     degree: int = 3, distance_threshold: float | None = None,
                     below_threshold: float = 0.5, range_coefficient: float | None = None,
                     sensor_origin: Sequence[float] | None = None, method: str = "robust",

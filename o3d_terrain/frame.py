@@ -11,6 +11,8 @@ shared tensors) and attributes are always *added* to a fresh copy.
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Mapping
@@ -176,9 +178,12 @@ def as_frame(data: Any) -> Frame:
         if array.shape[1] == 4:
             attributes["intensities"] = array[:, 3].astype(np.float32)
         return Frame(cloud_from_numpy(np.asarray(array[:, :3], dtype=np.float64), **attributes))
+    hint = ""
+    if isinstance(data, (str, os.PathLike)):
+        hint = f"; to read the file {str(data)!r}, pass o3d_terrain.read_cloud(path)"
     raise InputError(
         "expected an Open3D PointCloud (legacy or tensor), an (N, 3)/(N, 4) numpy array or a "
-        f"Frame, got {type(data).__name__}"
+        f"Frame, got {type(data).__name__}{hint}"
     )
 
 

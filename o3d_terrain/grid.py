@@ -137,6 +137,11 @@ def _exact_inverse(cell_size: float) -> float:
     return inverse if math.isfinite(inverse) else 0.0
 
 
+#: at most this share of a cloud's points may be stray returns far from the others for the
+#: grid's error to point them out (:func:`_stray_points`)
+STRAY_SHARE = 0.01
+
+
 def quantize_points(
     positions: np.ndarray,
     *,
@@ -177,10 +182,12 @@ def quantize_points(
     nx, ny = grid_shape(region, cell_size)
     if nx * ny > MAX_CELLS:
         span = max(x_max - x_min, y_max - y_min)
+        stray = _stray_points(x, y, cell_size)
         raise InputError(
             f"region {tuple(round(v, 3) for v in region)} at cell_size {cell_size} m needs "
             f"{nx}×{ny} cells (over {MAX_CELLS:,}); use a larger cell_size or a smaller region"
-            + (f" (the region spans {span / 1000:,.0f} km: if the coordinates are millimetres, "
+            + (stray if stray else
+               f" (the region spans {span / 1000:,.0f} km: if the coordinates are millimetres, "
                "scale the cloud to metres, e.g. positions / 1000)" if span > UNIT_HINT_SPAN
                else "")
         )
@@ -198,6 +205,28 @@ def quantize_points(
                       layer_above if layer else None, level if plane else None,
                       plane_sample if plane else None,
                       float(tilt_spread) if plane else None)
+
+
+def _stray_points(x: np.ndarray, y: np.ndarray, cell_size: float) -> str | None:
+    """For the error of a region from the cloud with too many cells: when at most
+    :data:`STRAY_SHARE` of the finite points lie far outside the box of the others (their 1st
+    to 99th percentiles, widened by half their span), and that box needs few enough cells,
+    the text that says so and gives the box as a region; None otherwise."""
+    finite = np.isfinite(x) & np.isfinite(y)
+    xs, ys = x[finite], y[finite]
+    if xs.size == 0:
+        return None
+    (x_lo, x_hi), (y_lo, y_hi) = np.percentile(xs, [1, 99]), np.percentile(ys, [1, 99])
+    pad_x, pad_y = 0.5 * (x_hi - x_lo) + cell_size, 0.5 * (y_hi - y_lo) + cell_size
+    box = (float(x_lo - pad_x), float(x_hi + pad_x), float(y_lo - pad_y), float(y_hi + pad_y))
+    stray = np.count_nonzero((xs < box[0]) | (xs > box[1]) | (ys < box[2]) | (ys > box[3]))
+    nx, ny = grid_shape(box, cell_size)
+    if stray == 0 or stray > STRAY_SHARE * xs.size or nx * ny > MAX_CELLS:
+        return None
+    verb = "lies" if stray == 1 else "lie"
+    return (f": {stray:,} of the {xs.size:,} points {verb} far outside the others, which fit in "
+            f"region={tuple(round(v, 1) for v in box)}; if they are stray returns, drop them "
+            f"or give that region (points outside it are left unlabelled)")
 
 
 def with_cell_planes(grid: HeightGrid, positions: np.ndarray | None, *,

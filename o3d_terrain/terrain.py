@@ -180,7 +180,7 @@ def fit_grid(grid: HeightGrid, **options) -> TerrainSurface:
 def fit_grid_detailed(
     grid: HeightGrid,
     *,
-    control_points: Sequence[int] | None = None,
+    control_points: Sequence[int] | int | None = None,
     degree: int = 3,
     method: str = "robust",
     smoothing: float = 0.05,
@@ -202,8 +202,8 @@ def fit_grid_detailed(
 ) -> TerrainFit | None:
     """Fit a rational B-spline terrain surface to a :class:`HeightGrid`.
 
-    control_points: (n0 + 1, n1 + 1) per axis at the end of the growth; None = from the grid's
-        extent (:func:`default_control_points`).
+    control_points: (n0 + 1, n1 + 1) per axis at the end of the growth (one int: both axes);
+        None = from the grid's extent (:func:`default_control_points`).
     degree: polynomial degree of the B-spline basis (the paper's "order 3" is degree 3).
     method: "robust" (default) or "paper" (Algorithm V-B.1 as printed, see module docstring).
     smoothing: thin-plate penalty relative to the mean data weight per control point (robust).
@@ -299,6 +299,8 @@ def fit_grid_detailed(
         )
     if control_points is None:
         control_points = default_control_points(grid, degree)
+    elif isinstance(control_points, (int, np.integer)):
+        control_points = (control_points, control_points)  # one value for both axes
     n_max = tuple(int(v) for v in control_points)
     if len(n_max) != 2 or min(n_max) < degree + 1:
         raise InputError(f"control_points must be two integers >= degree + 1 = {degree + 1}, "

@@ -230,6 +230,28 @@ def test_bad_clouds_give_clear_errors():
         fit_terrain(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)])
     with pytest.raises(InputError, match="too few valid cells"):
         fit_terrain(np.array([[0, 0, 0], [10, 10, 0.0]]))
+    # a path is not a cloud: the error says how to read it
+    with pytest.raises(InputError, match=r"o3d_terrain\.read_cloud\(path\)"):
+        segment_terrain("scan.ply")
+    # one stray return 10,000 km away: too many cells, and the error names the stray point and
+    # the region of the others
+    pts, _ = scene(5, n=3_000)
+    stray = np.r_[pts, [[1e7, 1e7, 0.0]]]
+    with pytest.raises(InputError, match=r"1 of the 3,001 points lies far outside the others"
+                                         r", which fit in region=\(-"):
+        segment_terrain(stray)
+    # ... which the region it names labels (the stray point left out)
+    _, inliers = segment_terrain(stray, region=(-35.0, 35.0, -35.0, 35.0))
+    assert inliers.size > 0.9 * len(pts) and inliers.max() < len(pts)
+
+
+def test_one_control_point_count_serves_both_axes():
+    pts, _ = scene(6, n=6_000)
+    surface, inliers = segment_terrain(pts, control_points=12, refine=False)
+    assert surface.control_points.shape == (12, 12)
+    same, same_inliers = segment_terrain(pts, control_points=[12, 12], refine=False)
+    np.testing.assert_array_equal(inliers, same_inliers)
+    assert fit_terrain(pts, control_points=9, refine=False).control_points.shape == (9, 9)
 
 
 def test_stages_write_declared_products_and_attributes():
