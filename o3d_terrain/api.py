@@ -199,8 +199,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
-    cell_size: grid cell side (m). control_points: per axis (one int: both); None = about one every 2 cells
-    (at least 1 m), at most 32 per axis (48 on a top-down scan, no points near
+    cell_size: grid cell side (m). control_points: per axis (one int: both); None = about one
+    every 2 cells (at least 1 m), at most 32 per axis (48 on a top-down scan, no points near
     ``sensor_origin``; one every 6 m on tiles wider than that allows), the refit (``refine``)
     up to 40 per axis (:data:`o3d_terrain.refine.REFINE_MAX_CONTROL_POINTS`; 64 on a
     vehicle's scan of steep relief, :func:`o3d_terrain.refine.steep_share`). degree: B-spline

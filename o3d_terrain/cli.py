@@ -37,7 +37,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("pipeline", help="pipeline YAML file")
     run.add_argument("--input", "-i", action="append", default=[], metavar="PATH",
                      help="point cloud file(s) or folder(s) to run on instead of the file's "
-                          "source; repeat for a batch (each input gets its own sub-folder)")
+                          "source; repeat for a batch (each input gets its own sub-folder, named "
+                          "after the file; -2, -3, ... for repeated names)")
     run.add_argument("--output", "-o", metavar="DIR", help="output folder (default: the file's "
                      "output_dir, else ./out)")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
@@ -136,6 +137,22 @@ def _expand_inputs(inputs: Sequence[str]) -> list[Path]:
     return paths
 
 
+def _output_folders(inputs: Sequence[Path]) -> list[str]:
+    """Each batch input's output sub-folder: its file name without the suffix, and where two
+    inputs share it (000000.bin of two drives, scan.las beside scan.laz) -2, -3, ... after it
+    for the later ones, so that no input's outputs overwrite another's."""
+    taken: set[str] = set()
+    folders = []
+    for path in inputs:
+        name, k = path.stem, 1
+        while name in taken:
+            k += 1
+            name = f"{path.stem}-{k}"
+        taken.add(name)
+        folders.append(name)
+    return folders
+
+
 def _run(args: argparse.Namespace, verbose: bool) -> int:
     inputs = _expand_inputs(args.input)
     if len(inputs) <= 1:
@@ -150,8 +167,8 @@ def _run(args: argparse.Namespace, verbose: bool) -> int:
     load_pipeline(args.pipeline, overrides=args.overrides,
                   input_path=existing[0] if existing else inputs[0])
     failed = []
-    for path in inputs:
-        out = Path(args.output or "out") / path.stem
+    for path, folder in zip(inputs, _output_folders(inputs)):
+        out = Path(args.output or "out") / folder
         try:
             pipeline = load_pipeline(args.pipeline, overrides=args.overrides, input_path=path)
             result = pipeline.run(output_dir=out)
@@ -161,6 +178,12 @@ def _run(args: argparse.Namespace, verbose: bool) -> int:
         except (O3DTerrainError, OSError, ValueError) as exc:
             failed.append(path)
             print(f"{path}: FAILED: {exc}", file=sys.stderr)
+        except Exception as exc:  # noqa: BLE001 - the batch goes on; -v shows the traceback
+            failed.append(path)
+            print(f"{path}: FAILED ({type(exc).__name__}, an internal error; please report it "
+                  f"with this input): {exc}", file=sys.stderr)
+            if verbose:
+                traceback.print_exc()
     print(f"{len(inputs) - len(failed)} of {len(inputs)} inputs done"
           + (f"; failed: {', '.join(str(p) for p in failed)}" if failed else ""))
     return EXIT_FAILURE if failed else EXIT_OK

@@ -58,6 +58,45 @@ def test_batch_keeps_going_past_a_bad_input(tmp_path, small_cloud, capsys):
     assert (tmp_path / "out" / "c" / "height.png").exists()
 
 
+def test_batch_inputs_of_one_name_keep_their_own_outputs(tmp_path, small_cloud, capsys):
+    for folder in ("drive1", "drive2"):
+        (tmp_path / folder).mkdir()
+        points = small_cloud[:300] if folder == "drive1" else small_cloud
+        np.save(tmp_path / folder / "000000.npy", points)
+    path = _pipeline(tmp_path, tmp_path / "drive1" / "000000.npy")
+    out = tmp_path / "out"
+    assert main(["run", str(path), "-o", str(out), "-i", str(tmp_path / "drive1"),
+                 "-i", str(tmp_path / "drive2")]) == 0
+    assert "-> " + str(out / "000000-2") in capsys.readouterr().out
+    first = yaml.safe_load((out / "000000" / "pipeline.resolved.yaml").read_text())
+    second = yaml.safe_load((out / "000000-2" / "pipeline.resolved.yaml").read_text())
+    assert first["source"]["path"].endswith("drive1/000000.npy")
+    assert second["source"]["path"].endswith("drive2/000000.npy")
+
+
+def test_batch_keeps_going_past_an_internal_error(tmp_path, small_cloud, capsys, monkeypatch):
+    import o3d_terrain.pipeline as pipeline_module
+
+    run = pipeline_module.Pipeline.run
+
+    def flaky(self, *args, **kwargs):
+        if "a.npy" in str(self.source):
+            raise RuntimeError("something unforeseen")
+        return run(self, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline_module.Pipeline, "run", flaky)
+    np.save(tmp_path / "a.npy", small_cloud)
+    np.save(tmp_path / "c.npy", small_cloud)
+    path = _pipeline(tmp_path, tmp_path / "a.npy")
+    code = main(["run", str(path), "-o", str(tmp_path / "out"), "-i", str(tmp_path / "a.npy"),
+                 "-i", str(tmp_path / "c.npy")])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "a.npy: FAILED (RuntimeError" in captured.err and "something unforeseen" in captured.err
+    assert "1 of 2 inputs done" in captured.out
+    assert (tmp_path / "out" / "c" / "height.png").exists()
+
+
 def test_runtime_failure_exits_1_without_traceback(tmp_path, capsys):
     (tmp_path / "nan.npy").write_bytes(b"")
     np.save(tmp_path / "nan.npy", np.full((5, 3), np.nan))
