@@ -174,9 +174,11 @@ def _build(
                 path = base_dir / path
             options[name] = str(path)
             if not path.exists():
-                problems.append(Problem(where, f"input file '{value}' not found (looked for {path})",
-                                        "check the path; relative paths resolve against the "
-                                        "pipeline file's folder"))
+                problems.append(Problem(
+                    where, f"input file '{value}' not found (looked for {path})",
+                    "check the path" + ("" if Path(value).expanduser().is_absolute() else
+                                        "; relative paths resolve against the pipeline "
+                                        "file's folder")))
     problems += cls.check_config(options, where)
     if problems:
         return None, problems
@@ -304,6 +306,11 @@ def load_pipeline(
         raise ConfigError(Problem(str(path), "must be a mapping with 'stages:'"))
     config = apply_overrides(config, overrides)
     if input_path is not None:  # a cloud file replaces whatever source the file names
+        if not Path(input_path).exists():
+            raise ConfigError(Problem("--input", f"'{input_path}' not found (looked for "
+                                      f"{Path(input_path).resolve()})",
+                                      "check the path; relative paths resolve against the "
+                                      "current folder"))
         config["source"] = {"type": "ReadCloud", "path": str(Path(input_path).resolve())}
     try:
         return parse_pipeline(config, base_dir=path.parent.resolve())

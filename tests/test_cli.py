@@ -97,6 +97,16 @@ def test_batch_keeps_going_past_an_internal_error(tmp_path, small_cloud, capsys,
     assert (tmp_path / "out" / "c" / "height.png").exists()
 
 
+def test_a_missing_input_names_the_option(tmp_path, small_cloud, capsys, monkeypatch):
+    np.save(tmp_path / "a.npy", small_cloud)
+    path = _pipeline(tmp_path, tmp_path / "a.npy")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(path), "-i", "missing.npy"]) == 2
+    err = capsys.readouterr().err
+    assert f"--input: 'missing.npy' not found (looked for {tmp_path / 'missing.npy'})" in err
+    assert "against the current folder" in err and "pipeline file's folder" not in err
+
+
 def test_runtime_failure_exits_1_without_traceback(tmp_path, capsys):
     (tmp_path / "nan.npy").write_bytes(b"")
     np.save(tmp_path / "nan.npy", np.full((5, 3), np.nan))
