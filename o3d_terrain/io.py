@@ -73,6 +73,9 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
         raise InputError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
     path = Path(path)
     suffix = path.suffix.lower()
+    if path.is_dir():
+        raise InputError(f"{path} is a folder; give one of its point cloud files (`o3d-terrain "
+                         f"run --input` takes a folder: every cloud in it, as a batch)")
     if suffix not in CLOUD_EXTENSIONS:
         raise InputError(
             f"{path}: unknown point cloud format '{suffix}'; supported: {', '.join(CLOUD_EXTENSIONS)}"

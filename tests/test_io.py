@@ -46,6 +46,9 @@ def test_unreadable_inputs(tmp_path):
         read_cloud(tmp_path / "missing.ply")
     with pytest.raises(InputError, match="unknown point cloud format"):
         read_cloud(tmp_path / "x.abc")
+    (tmp_path / "scans.ply").mkdir()  # a folder, even one named like a cloud
+    with pytest.raises(InputError, match="is a folder; give one of its point cloud files"):
+        read_cloud(tmp_path / "scans.ply")
     (tmp_path / "empty.ply").write_bytes(b"")
     with pytest.raises(InputError, match="empty"):
         read_cloud(tmp_path / "empty.ply")
