@@ -62,3 +62,8 @@ def did_you_mean(name: str, candidates: Sequence[str]) -> str:
     """Return " (did you mean 'x'?)" for the closest candidate, or "" when none is close."""
     close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
     return f"did you mean '{close[0]}'?" if close else ""
+
+
+class TerrainWarning(UserWarning):
+    """Input the library can process but that is probably not what the caller meant (a cloud
+    whose z axis is not up); the message says what to check and how to fix it."""

@@ -27,7 +27,15 @@ import open3d as o3d
 from .errors import InputError
 from .frame import transform_points
 
-__all__ = ["level_cloud", "level_arrays", "levelling_transform", "tilt_deg"]
+__all__ = ["level_cloud", "level_arrays", "levelling_transform", "tilt_deg", "up_axis_hint"]
+
+#: :func:`up_axis_hint`: a cloud flatter than this along its flattest direction (its least
+#: variance over the middle one) ...
+UP_FLAT_RATIO = 0.2
+#: ... with that direction more than this many degrees from z does not have z up
+UP_MAX_TILT_DEG = 60.0
+#: ... measured on at most this many of its points (evenly picked)
+UP_SAMPLE = 4096
 
 
 def _vector(values: Any, name: str) -> np.ndarray:
@@ -122,3 +130,37 @@ def level_cloud(cloud: Any, up: Sequence[float], *,
         return out, transform
     raise InputError(f"level_cloud takes a numpy array or an Open3D point cloud; got "
                      f"{type(cloud).__name__}")
+
+
+def up_axis_hint(positions: np.ndarray, sensor_origin: Sequence[float] = (0.0, 0.0, 0.0)
+                 ) -> str | None:
+    """A warning's text when the cloud ``positions`` (N, 3) is clearly flat along a direction
+    more than :data:`UP_MAX_TILT_DEG` from z, its least variance under :data:`UP_FLAT_RATIO`
+    times the middle one (a camera's frame, x right, y down, z forward; a sensor frame tilted
+    that far): the terrain is a height field over (x, y). None otherwise, and for clouds of
+    fewer than 10 finite points. The levelling it proposes takes the flat direction as up,
+    pointing away from the points' side of ``sensor_origin`` (the ground lies below a sensor).
+
+    Every vehicle, stereo and airborne cloud of the project's benchmarks stays under 40°
+    (SemanticKITTI rolled 40° 39°, the synthetic stereo clouds about 10°, LAS tiles up to 27°,
+    or not flat: ratio 0.40), their camera-frame copies 72-85°."""
+    p = np.asarray(positions, dtype=np.float64)
+    p = p[:: max(1, len(p) // UP_SAMPLE)]
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < 10:
+        return None
+    mean = p.mean(axis=0)
+    centred = p - mean
+    values, vectors = np.linalg.eigh(centred.T @ centred / len(p))
+    flat = vectors[:, 0]
+    tilt = math.degrees(math.acos(min(1.0, abs(float(flat[2])))))
+    if not (values[0] < UP_FLAT_RATIO * values[1] and tilt > UP_MAX_TILT_DEG):
+        return None
+    if float(np.dot(mean - _vector(sensor_origin, "sensor_origin"), flat)) > 0:
+        flat = -flat  # up points away from the points' side: the ground is below the sensor
+    up = tuple(round(float(v), 2) + 0.0 for v in flat)
+    return (f"the cloud is flat across {up} ({tilt:.0f}° from the z axis), while the terrain "
+            f"model takes z as up: if it is in a camera's frame (x right, y down, z forward) "
+            f"or in a sensor frame tilted that far, level it first, e.g. "
+            f"o3d_terrain.level_cloud(cloud, up={up}) with that direction or, better, an "
+            f"IMU's up; ignore this for a scan made mostly of one steep face")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import open3d as o3d
@@ -107,3 +108,26 @@ def test_levelled_by_gravity_the_surface_gives_the_worlds_slope():
     assert float(surface.slope_deg(5.0, 0.0)) == pytest.approx(20.0, abs=0.5)
     assert len(inliers) > 0.98 * len(cloud.positions)
     assert inliers.max() < len(cloud.positions)
+
+
+def test_a_cloud_in_a_cameras_frame_is_warned_of_with_its_levelling():
+    # a camera 1.6 m above flat ground with a box on it, in OpenCV's frame: x right, y down,
+    # z forward; the warning proposes the up that levels it, which gives the ground back
+    rng = np.random.default_rng(3)
+    forward, right = rng.uniform(3, 30, 20_000), rng.uniform(-10, 10, 20_000)
+    up = rng.normal(0.0, 0.02, 20_000)
+    box = (np.abs(forward - 12) < 1) & (np.abs(right) < 1)
+    up[box] += rng.uniform(0.3, 1.5, box.sum())
+    camera = np.c_[right, 1.6 - up, forward]
+    with pytest.warns(o3d_terrain.TerrainWarning, match=r"flat across \(0\.0, -1\.0, 0\.0\) "
+                                                        r"\(90° from the z axis\)") as caught:
+        o3d_terrain.segment_terrain(camera)
+    text = str(caught[0].message)
+    assert "GridQuantize" in text and "level_cloud(cloud, up=(0.0, -1.0, 0.0))" in text
+    levelled, _ = o3d_terrain.level_cloud(camera, (0.0, -1.0, 0.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # levelled, or a vehicle's frame: no warning
+        _, inliers = o3d_terrain.segment_terrain(levelled)
+        o3d_terrain.segment_terrain(np.c_[forward, -right, up - 1.6])
+    assert np.isin(np.flatnonzero(~box), inliers).mean() > 0.99
+    assert np.isin(np.flatnonzero(box & (up > 0.3)), inliers).mean() < 0.02

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
+from ..errors import TerrainWarning
 from ..frame import Frame
 from ..grid import HeightGrid, quantize_points
 from ..ground_layer import default_layer
+from ..level import up_axis_hint
 from ..options import POSITIVE, Range, option
 from ..terrain import NOISE_FLOOR
 from .base import Stage, stage
@@ -64,7 +68,12 @@ class GridQuantize(Stage):
         gathered in the same pass (None = :func:`~o3d_terrain.ground_layer.default_layer`,
         what RationalBSplineTerrain's defaults use; 0 = none); plane, tilt_spread: also the
         cells' planes (:func:`quantize_points`; by default those RationalBSplineTerrain's
-        defaults use, cell_plane with tilt_spread = its noise_floor)."""
+        defaults use, cell_plane with tilt_spread = its noise_floor). Warns
+        (:class:`~o3d_terrain.errors.TerrainWarning`) when the cloud is clearly not z-up
+        (:func:`~o3d_terrain.level.up_axis_hint`)."""
+        hint = up_axis_hint(positions)
+        if hint:
+            warnings.warn(f"{self.type_name}: {hint}", TerrainWarning, stacklevel=2)
         return quantize_points(
             positions, cell_size=self.cell_size,
             region=self.region if region is None else region,
