@@ -8,13 +8,14 @@ from __future__ import annotations
 import argparse
 import sys
 import traceback
+import warnings
 from pathlib import Path
 from typing import Sequence
 
 from . import __version__
 from .docgen import describe_text, list_text
 from ._malloc import keep_freed_memory
-from .errors import ConfigError, O3DTerrainError, Problem, did_you_mean
+from .errors import ConfigError, O3DTerrainError, Problem, TerrainWarning, did_you_mean
 from .pipeline import load_pipeline
 from .stages import STAGES
 from .writers import WRITERS
@@ -76,6 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_CONFIG
     keep_freed_memory()  # this process runs frame after frame: o3d_terrain/_malloc.py
+    _show_warnings_plainly()
     try:
         if args.command == "run":
             return _run(args, verbose)
@@ -119,6 +121,20 @@ def _error(exc: BaseException, verbose: bool = False, unexpected: bool = False) 
     print(f"{prefix}: {exc}", file=sys.stderr)
     if unexpected and not verbose:
         print("(run with -v for the traceback)", file=sys.stderr)
+
+
+def _show_warnings_plainly() -> None:
+    """The library's warnings about the input (TerrainWarning) as "warning: ..." lines on
+    standard error, like the command's errors, not with Python's file and line."""
+    show = warnings.showwarning
+
+    def plain(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, TerrainWarning):
+            print(f"warning: {message}", file=sys.stderr if file is None else file)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = plain
 
 
 def _expand_inputs(inputs: Sequence[str]) -> list[Path]:

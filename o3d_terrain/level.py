@@ -162,5 +162,6 @@ def up_axis_hint(positions: np.ndarray, sensor_origin: Sequence[float] = (0.0, 0
     return (f"the cloud is flat across {up} ({tilt:.0f}° from the z axis), while the terrain "
             f"model takes z as up: if it is in a camera's frame (x right, y down, z forward) "
             f"or in a sensor frame tilted that far, level it first, e.g. "
-            f"o3d_terrain.level_cloud(cloud, up={up}) with that direction or, better, an "
-            f"IMU's up; ignore this for a scan made mostly of one steep face")
+            f"o3d_terrain.level_cloud(cloud, up={up}) (in a pipeline, the stage LevelCloud "
+            f"with up: {list(up)}) with that direction or, better, an IMU's up; ignore this "
+            f"for a scan made mostly of one steep face")

@@ -107,6 +107,17 @@ def test_a_missing_input_names_the_option(tmp_path, small_cloud, capsys, monkeyp
     assert "against the current folder" in err and "pipeline file's folder" not in err
 
 
+def test_a_cloud_in_a_cameras_frame_gets_a_plain_warning(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    forward, right = rng.uniform(3, 30, 5_000), rng.uniform(-10, 10, 5_000)
+    np.save(tmp_path / "camera.npy", np.c_[right, 1.6 + rng.normal(0, 0.02, 5_000), forward])
+    path = _pipeline(tmp_path, tmp_path / "camera.npy")
+    assert main(["run", str(path), "-o", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: GridQuantize: the cloud is flat across (0.0, -1.0, 0.0)" in err
+    assert "the stage LevelCloud with up: [0.0, -1.0, 0.0]" in err and ".py:" not in err
+
+
 def test_runtime_failure_exits_1_without_traceback(tmp_path, capsys):
     (tmp_path / "nan.npy").write_bytes(b"")
     np.save(tmp_path / "nan.npy", np.full((5, 3), np.nan))
