@@ -171,9 +171,14 @@ def as_frame(data: Any) -> Frame:
         if array.ndim != 2 or array.shape[1] not in (3, 4):
             if array.size == 0:
                 return Frame(cloud_from_numpy(np.zeros((0, 3))))
+            hint = ""
+            if array.ndim == 3 and array.shape[2] in (3, 4):  # an organised (rows, columns) scan
+                hint = (f"; an organised scan of {array.shape[0]} × {array.shape[1]} points "
+                        f"goes in as cloud.reshape(-1, {array.shape[2]}) (the indices returned "
+                        f"then index that order)")
             raise InputError(
-                f"expected an (N, 3) or (N, 4) array of x, y, z[, intensity], got shape {array.shape}"
-            )
+                f"expected an (N, 3) or (N, 4) array of x, y, z[, intensity], got shape "
+                f"{array.shape}{hint}")
         attributes = {}
         if array.shape[1] == 4:
             attributes["intensities"] = array[:, 3].astype(np.float32)

@@ -230,6 +230,10 @@ def test_bad_clouds_give_clear_errors():
         fit_terrain(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)])
     with pytest.raises(InputError, match="too few valid cells"):
         fit_terrain(np.array([[0, 0, 0], [10, 10, 0.0]]))
+    # an organised scan (rows, columns, xyz): the error says how to pass it
+    with pytest.raises(InputError, match=r"organised scan of 16 × 100 points goes in as "
+                                         r"cloud\.reshape\(-1, 3\)"):
+        segment_terrain(np.zeros((16, 100, 3)))
     # a path is not a cloud: the error says how to read it
     with pytest.raises(InputError, match=r"o3d_terrain\.read_cloud\(path\)"):
         segment_terrain("scan.ply")
