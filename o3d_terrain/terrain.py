@@ -806,6 +806,7 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             w = _restore_long_terrain(w, base_cells, prior[2].ravel()[valid_cells],
                                       valid_cells, z_start.shape, cell_size)
         previous_w = w
+        converged = False
         for k in range(passes):
             iteration += 1
             p_on, w_on, ratios_on = (p, w, ratios) if final else (p[on], w[on], ratios[on])
@@ -831,7 +832,8 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             have_ratios = True
             w, p = w_next, p_next
             records.append(IterationRecord(n, mean_error, th_above, moved))
-            if k > 0 and change < 0.02:
+            converged = k > 0 and change < 0.02
+            if converged:
                 break
             previous_w = w
             if iteration >= max_iterations and final:
@@ -843,10 +845,17 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             z = np.ascontiguousarray(z_grid).ravel()[valid_cells]
             cell_sigma = np.ascontiguousarray(sigma, dtype=np.float64).ravel()[valid_cells]
     basis_final = basis
-    rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
-                                                              valid_cells)
-    q = basis_final.solve_cells(valid_cells, p, w, rr, smoothing, denominators=denominators)
-    s = basis_final.evaluate_at_cells(q, rr, valid_cells, surface, denominators)
+    if converged:
+        # the last pass moved the weights by less than the tolerance: its surface is the
+        # loop's (an IRLS stops on the solution whose weights no longer change), and the
+        # weights and samples returned are those that surface gives (docs/algorithm.md,
+        # "The loop's last solve")
+        rr = r
+    else:
+        rr = np.ones(n) if not rational else _control_weights(ratios, coverage, basis,
+                                                                  valid_cells)
+        q = basis_final.solve_cells(valid_cells, p, w, rr, smoothing, denominators=denominators)
+        s = basis_final.evaluate_at_cells(q, rr, valid_cells, surface, denominators)
     # back onto the grid in one pass: 0 weight, sample z (before any noise update) and False
     # elsewhere
     weights_grid, samples_grid, equalized_grid, outliers = _tk.scatter_cells(
