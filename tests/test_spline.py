@@ -126,6 +126,17 @@ def test_slope_of_tilted_plane():
     np.testing.assert_allclose(n, np.tile([-0.2, 0, 1] / np.sqrt(1.04), (3, 1)), atol=1e-9)
 
 
+@pytest.mark.parametrize("step", [0.5, 0.7, 1.3])
+def test_slope_grid_is_slope_deg_at_the_centres(step):
+    # the grid kernel (one contraction per row of centres) against the per-point evaluation,
+    # with a last partial row and column (centres outside the region: NaN in both)
+    s = random_surface(np.random.default_rng(5), origin=(500_000.0, 4_000_000.0, 300.0))
+    grid = s.slope_grid(step)
+    reference = s.slope_deg(grid.x_centers[:, None], grid.y_centers[None, :])
+    np.testing.assert_array_equal(np.isnan(grid.slope_deg), np.isnan(reference))
+    np.testing.assert_allclose(grid.slope_deg, reference, atol=1e-10, equal_nan=True)
+
+
 @pytest.mark.parametrize("method", ["tensor", "two_pass"])
 def test_fit_reproduces_a_spline_exactly(method):
     rng = np.random.default_rng(4)
