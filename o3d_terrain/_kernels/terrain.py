@@ -393,6 +393,22 @@ def scatter_cells(state, cells, weights, samples, equalized, z, surface, thresho
 
 
 @numba.njit(cache=True)
+def uniform_knot_spans(knots, n_ctrl, degree, tolerance):
+    """True when the knot spans under the control polygon (knots degree .. n_ctrl) differ by
+    at most ``tolerance`` times their mean width: max - min of the differences of successive
+    knots, and the mean as (knots[n_ctrl] - knots[degree]) / their count, as numpy's
+    ``ptp(diff(...))`` and that mean compute them."""
+    low = math.inf
+    high = -math.inf
+    for i in range(degree, n_ctrl):
+        width = knots[i + 1] - knots[i]
+        low = min(low, width)
+        high = max(high, width)
+    mean = (knots[n_ctrl] - knots[degree]) / (n_ctrl - degree)
+    return high - low <= tolerance * mean
+
+
+@numba.njit(cache=True)
 def axis_basis(t, knots, n_ctrl, degree):
     """One axis of a grid basis in one call: the knots (returned as given), the span and the
     degree + 1 non-zero basis values at every parameter of ``t`` (what ``basis_table(t, n_ctrl,
