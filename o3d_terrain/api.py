@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import ConfigError, InputError
-from .frame import LABELS, Frame, as_frame
+from .frame import LABELS, Frame, as_frame, warn_coarse_float32
 from .grid import region_of
 from .ground_layer import default_layer
 from .locate import locate_sensor
@@ -84,6 +84,7 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
     if not (isinstance(cloud, np.ndarray) and cloud.ndim == 2 and cloud.shape[1] in (3, 4)
             and cloud.dtype != object and np.issubdtype(cloud.dtype, np.number)):
         return None
+    warn_coarse_float32(cloud)
     return np.ascontiguousarray(cloud[:, :3], dtype=np.float64)
 
 

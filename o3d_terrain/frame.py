@@ -12,7 +12,7 @@ shared tensors) and attributes are always *added* to a fresh copy.
 from __future__ import annotations
 
 import os
-
+import warnings
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Mapping
@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 import open3d as o3d
 
-from .errors import InputError
+from .errors import InputError, TerrainWarning
 
 #: per-point attribute names written by the stages (Open3D style: plural snake_case)
 LABELS = "labels"
@@ -134,6 +134,32 @@ def cloud_from_numpy(positions: np.ndarray, **attributes: np.ndarray) -> o3d.t.g
     return cloud
 
 
+#: :func:`warn_coarse_float32`: float32 coordinates more than this far apart (m) at the cloud's
+#: largest magnitude have lost the points' geometry
+FLOAT32_STEP = 0.01
+
+
+def warn_coarse_float32(positions: np.ndarray) -> None:
+    """Warn (:class:`~o3d_terrain.errors.TerrainWarning`) when the float32 or float16 (N, >= 3)
+    ``positions`` reach a magnitude where successive values lie more than
+    :data:`FLOAT32_STEP` apart: projected coordinates (UTM northings of millions of metres are
+    0.25-0.5 m apart in float32) rounded before they reached the library."""
+    if positions.dtype not in (np.float32, np.float16) or positions.size == 0:
+        return
+    finite = positions[:, :3][np.isfinite(positions[:, :3])]
+    if finite.size == 0:
+        return
+    largest = float(np.abs(finite).max())
+    step = float(np.spacing(positions.dtype.type(largest)))
+    if step > FLOAT32_STEP:
+        warnings.warn(
+            f"the cloud's coordinates are {positions.dtype} and reach {largest:,.0f} m, where "
+            f"successive {positions.dtype} values are {step:g} m apart: the points were rounded "
+            f"that much before they reached the library. Read them as float64, or subtract an "
+            f"offset (e.g. the tile's corner) before converting them to {positions.dtype}",
+            TerrainWarning, stacklevel=3)
+
+
 def as_frame(data: Any) -> Frame:
     """Accept a Frame, an Open3D legacy or tensor PointCloud, or an (N, 3)/(N, 4) array.
 
@@ -151,6 +177,8 @@ def as_frame(data: Any) -> Frame:
         if positions.device.get_type() != o3d.core.Device.DeviceType.CPU:
             cloud = cloud.cpu()
         if cloud.point.positions.dtype != o3d.core.float64:
+            if cloud.point.positions.dtype == o3d.core.float32:
+                warn_coarse_float32(cloud.point.positions.numpy())
             cloud.point.positions = cloud.point.positions.to(o3d.core.float64)
         for name in list(cloud.point):
             values = cloud.point[name]
@@ -179,6 +207,7 @@ def as_frame(data: Any) -> Frame:
             raise InputError(
                 f"expected an (N, 3) or (N, 4) array of x, y, z[, intensity], got shape "
                 f"{array.shape}{hint}")
+        warn_coarse_float32(array)
         attributes = {}
         if array.shape[1] == 4:
             attributes["intensities"] = array[:, 3].astype(np.float32)

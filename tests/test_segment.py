@@ -249,6 +249,26 @@ def test_bad_clouds_give_clear_errors():
     assert inliers.size > 0.9 * len(pts) and inliers.max() < len(pts)
 
 
+def test_float32_coordinates_rounded_coarsely_are_warned_of():
+    import warnings
+
+    import o3d_terrain
+
+    pts, _ = scene(7, n=4_000)
+    utm = (pts + [512_345.0, 4_512_345.0, 250.0]).astype(np.float32)
+    with pytest.warns(o3d_terrain.TerrainWarning, match=r"float32 and reach 4,512,3\d\d m, "
+                                                        r"where successive float32 values "
+                                                        r"are 0\.5 m apart"):
+        segment_terrain(utm)
+    tensor = o3d.t.geometry.PointCloud(o3d.core.Tensor(utm))
+    with pytest.warns(o3d_terrain.TerrainWarning, match="0.5 m apart"):
+        segment_terrain(tensor)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # float32 in a sensor's frame, float64 in UTM: silent
+        segment_terrain(pts.astype(np.float32))
+        segment_terrain(pts + [512_345.0, 4_512_345.0, 250.0])
+
+
 def test_one_control_point_count_serves_both_axes():
     pts, _ = scene(6, n=6_000)
     surface, inliers = segment_terrain(pts, control_points=12, refine=False)
