@@ -30,6 +30,7 @@ from __future__ import annotations
 import ctypes
 import os
 import sys
+from typing import Mapping
 
 __all__ = ["ENVIRONMENT", "keep_freed_memory"]
 
@@ -50,7 +51,7 @@ _USER_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TO
                   "MALLOC_MMAP_MAX_")
 
 
-def keep_freed_memory(environ: dict[str, str] | None = None) -> bool:
+def keep_freed_memory(environ: Mapping[str, str] | None = None) -> bool:
     """Set glibc's mmap and trim thresholds to :data:`MMAP_THRESHOLD` and
     :data:`TRIM_THRESHOLD` unless the process (``environ``, default ``os.environ``) says
     otherwise (module docstring); True when they were set."""

@@ -66,4 +66,5 @@ def did_you_mean(name: str, candidates: Sequence[str]) -> str:
 
 class TerrainWarning(UserWarning):
     """Input the library can process but that is probably not what the caller meant (a cloud
-    whose z axis is not up); the message says what to check and how to fix it."""
+    whose z axis is not up, coordinates float32 rounded by more than a centimetre); the
+    message says what to check and how to fix it."""
