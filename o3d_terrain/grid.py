@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._files import output_path
 from ._kernels import grid as _grid
 from .errors import InputError
 
@@ -96,7 +97,7 @@ class HeightGrid:
         extremes = {k: v for k, v in (("lowest", self.lowest), ("highest", self.highest),
                                       ("mean", self.mean)) if v is not None}
         np.savez_compressed(
-            path, kind="HeightGrid", x_min=self.x_min, y_min=self.y_min,
+            output_path(path), kind="HeightGrid", x_min=self.x_min, y_min=self.y_min,
             cell_size=self.cell_size, z=self.z, count=self.count, state=self.state, **extremes,
         )
 

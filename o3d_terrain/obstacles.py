@@ -28,6 +28,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from ._files import output_path
 from ._kernels import obstacles as _k
 from .errors import InputError
 from .frame import HEIGHTS_ABOVE_TERRAIN, LABELS, as_frame
@@ -135,7 +136,7 @@ class ObstacleSet:
 
     def save(self, path: str | Path, *, include_indices: bool = False) -> None:
         """Write the obstacles as JSON (see docs/obstacles.md for the fields)."""
-        Path(path).write_text(json.dumps(self.to_json(include_indices=include_indices),
+        output_path(path).write_text(json.dumps(self.to_json(include_indices=include_indices),
                                          indent=1))
 
 

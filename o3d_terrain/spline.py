@@ -29,6 +29,7 @@ import numba
 import numpy as np
 from scipy.linalg import get_lapack_funcs
 
+from ._files import output_path
 from ._kernels import bspline as _bs
 from ._kernels import terrain as _tk
 from .errors import InputError
@@ -305,7 +306,7 @@ class TerrainSurface:
     def save(self, path: str | Path) -> None:
         """Write the surface to a ``.npz`` file (exact round trip with :meth:`load`)."""
         extra = {} if self.cell_size is None else {"cell_size": self.cell_size}
-        np.savez(path, kind="TerrainSurface", degree=self.degree, knots_x=self.knots_x,
+        np.savez(output_path(path), kind="TerrainSurface", degree=self.degree, knots_x=self.knots_x,
                  knots_y=self.knots_y, control_points=self.control_points,
                  weights=self.weights, origin=np.asarray(self.origin), **extra)
 
@@ -369,7 +370,7 @@ class SlopeGrid:
 
     def save(self, path: str | Path) -> None:
         """Write to an ``.npz`` file (round trip with :meth:`load`)."""
-        np.savez_compressed(path, kind="SlopeGrid", slope_deg=self.slope_deg,
+        np.savez_compressed(output_path(path), kind="SlopeGrid", slope_deg=self.slope_deg,
                             x_centers=self.x_centers, y_centers=self.y_centers,
                             cell_size=self.cell_size)
 

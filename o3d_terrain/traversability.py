@@ -38,6 +38,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ._files import output_path
 from ._kernels import bspline as _bs
 from ._kernels import obstacles as _k
 from .errors import InputError
@@ -315,7 +316,7 @@ class CostMap:
         import json
 
         np.savez_compressed(
-            path, kind="CostMap", x_min=self.x_min, y_min=self.y_min, cell_size=self.cell_size,
+            output_path(path), kind="CostMap", x_min=self.x_min, y_min=self.y_min, cell_size=self.cell_size,
             cost=self.cost, state=self.state, slope_deg=self.slope_deg,
             step_height=self.step_height, roughness=self.roughness,
             vehicle=json.dumps(self.vehicle.to_dict()), options=json.dumps(self.options))

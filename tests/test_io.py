@@ -117,3 +117,27 @@ def test_read_cloud_and_evaluation_reader_agree_on_a_feet_tile(shared_data):
     cloud = read_cloud(path).point.positions.numpy()
     np.testing.assert_allclose(cloud, frame.positions)
     assert frame.metres_per_unit == pytest.approx(1200.0 / 3937.0)
+
+
+def test_products_save_into_folders_not_made_yet(tmp_path):
+    # a product computed for minutes is not lost to a missing folder (as write_cloud)
+    import o3d_terrain
+    from o3d_terrain.spline import SlopeGrid, TerrainSurface
+
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(0, 20, 4000), rng.uniform(0, 20, 4000), rng.normal(0, 0.02, 4000)]
+    pts[:40, 2] += 1.5
+    surface, _ = o3d_terrain.segment_terrain(pts)
+    folder = tmp_path / "run" / "frame_000"
+    surface.save(folder / "surface.npz")
+    surface.slope_grid(1.0).save(folder / "slope.npz")
+    grid = o3d_terrain.quantize_points(pts, cell_size=0.5)
+    grid.save(folder / "grid.npz")
+    o3d_terrain.detect_obstacles(pts, surface=surface).save(folder / "deep" / "obstacles.json")
+    o3d_terrain.traversability_cost(surface, pts).save(folder / "cost.npz")
+    back = TerrainSurface.load(folder / "surface.npz")
+    np.testing.assert_array_equal(back.control_points, surface.control_points)
+    assert SlopeGrid.load(folder / "slope.npz").slope_deg.shape == \
+        surface.slope_grid(1.0).slope_deg.shape
+    assert (folder / "grid.npz").exists() and (folder / "deep" / "obstacles.json").exists()
+    assert (folder / "cost.npz").exists()

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
+from .._files import output_path
 from ..errors import InputError
 from ..frame import Frame, cloud_from_numpy, transform_points
 from ..noise import RangeNoise
@@ -73,7 +74,7 @@ class DisparityMap:
         """Write an ``.npz`` with the disparity, depth, image and calibration numbers."""
         c = self.calibration
         np.savez_compressed(
-            path, kind="DisparityMap", disparity=self.values, depth=self.depth, image=self.image,
+            output_path(path), kind="DisparityMap", disparity=self.values, depth=self.depth, image=self.image,
             fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy, baseline=c.baseline, doffs=c.doffs,
             camera_to_output=self.camera_to_output, disparity_range=np.array(self.disparity_range),
         )

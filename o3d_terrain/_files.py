@@ -1,0 +1,14 @@
+"""Output files of the products' ``save`` methods."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def output_path(path: str | os.PathLike) -> Path:
+    """``path`` as a Path with its folder created when missing, as ``write_cloud`` and the
+    pipeline writers do: a product computed for minutes is not lost to a folder not made yet."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
