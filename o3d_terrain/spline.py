@@ -89,9 +89,17 @@ def _check_knots(n_ctrl: int, degree: int, low: float, high: float) -> None:
 
 
 def _as_xy(x, y) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    x, y = np.broadcast_arrays(x, y)
+    try:
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"x and y must be numbers or arrays of numbers ({exc})") from None
+    try:
+        x, y = np.broadcast_arrays(x, y)
+    except ValueError:
+        raise InputError(f"x of shape {x.shape} and y of shape {y.shape} do not broadcast to "
+                         f"one shape; give arrays of one shape (or x[:, None], y[None, :] for "
+                         f"a grid)") from None
     shape = x.shape
     return np.ascontiguousarray(x.ravel()), np.ascontiguousarray(y.ravel()), shape
 

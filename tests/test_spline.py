@@ -126,6 +126,15 @@ def test_slope_of_tilted_plane():
     np.testing.assert_allclose(n, np.tile([-0.2, 0, 1] / np.sqrt(1.04), (3, 1)), atol=1e-9)
 
 
+def test_evaluation_of_bad_coordinates_is_a_clear_error():
+    s = random_surface(np.random.default_rng(6))
+    with pytest.raises(InputError, match=r"shape \(3,\) and y of shape \(4,\) do not broadcast"):
+        s(np.zeros(3), np.zeros(4))
+    with pytest.raises(InputError, match="numbers or arrays of numbers"):
+        s.slope_deg("a", 0.0)
+    assert s(np.zeros((2, 1)), np.zeros((1, 5))).shape == (2, 5)  # a grid still broadcasts
+
+
 @pytest.mark.parametrize("step", [0.5, 0.7, 1.3])
 def test_slope_grid_is_slope_deg_at_the_centres(step):
     # the grid kernel (one contraction per row of centres) against the per-point evaluation,
