@@ -19,6 +19,7 @@ column can.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from enum import IntEnum
@@ -446,12 +447,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
     use_misfit = threshold is None and misfit and isinstance(surface, TerrainSurface)
     block = block_size(surface) if use_misfit else 0.0
-    found_spacing = []  # scan_line_spacing of the cloud, found once when first asked
-
-    def line_spacing() -> float:
-        if not found_spacing:
-            found_spacing.append(scan_line_spacing(p, sensor_origin))
-        return found_spacing[0]
+    # scan_line_spacing of the cloud, found once when first asked
+    line_spacing = functools.cache(lambda: scan_line_spacing(p, sensor_origin))
 
     if threshold is None:
         threshold = auto_threshold(h)
