@@ -1,4 +1,5 @@
-"""Output files of the products' ``save`` methods."""
+"""Where output files go: the one place that makes their folder (``write_cloud``,
+``write_image``, the pipeline writers, the products' ``save`` methods)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ from pathlib import Path
 
 
 def output_path(path: str | os.PathLike) -> Path:
-    """``path`` as a Path with its folder created when missing, as ``write_cloud`` and the
-    pipeline writers do: a product computed for minutes is not lost to a folder not made yet."""
+    """``path`` as a Path with its folder created when missing: a product computed for
+    minutes is not lost to a folder not made yet."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return path

@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
+from ._files import output_path
 from .errors import InputError
 from .frame import Frame, as_frame, cloud_from_numpy
 
@@ -250,7 +251,7 @@ def write_cloud(path: str | os.PathLike, cloud: Any) -> Path:
     suffix = path.suffix.lower()
     if suffix not in WRITE_EXTENSIONS:
         raise InputError(f"{path}: cannot write '{suffix}'; use one of {', '.join(WRITE_EXTENSIONS)}")
-    path.parent.mkdir(parents=True, exist_ok=True)
+    output_path(path)
     if suffix == ".npz":
         arrays = {"positions": np.asarray(frame.positions)}
         for name in frame.attribute_names():
@@ -342,8 +343,7 @@ def render_grid_image(
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write an image (PNG, JPG); raises when OpenCV fails."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = output_path(path)
     if not cv2.imwrite(str(path), image):
         raise InputError(f"{path}: OpenCV could not write the image (unknown extension or folder?)")
     return path

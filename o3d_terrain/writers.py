@@ -12,6 +12,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from . import io
+from ._files import output_path
 from .errors import InputError
 from .frame import Frame
 from .grid import HeightGrid
@@ -161,8 +162,7 @@ class WriteProduct(Writer):
 
     def write(self, frame: Frame, out_dir: Path) -> list[Path]:
         value = frame.product(self.product)
-        target = self._target(out_dir, self.path)
-        target.parent.mkdir(parents=True, exist_ok=True)
+        target = output_path(self._target(out_dir, self.path))
         if hasattr(value, "save"):
             value.save(target)
         elif isinstance(value, np.ndarray):
@@ -181,8 +181,7 @@ class WriteAttribute(Writer):
 
     def write(self, frame: Frame, out_dir: Path) -> list[Path]:
         values = np.asarray(frame.attribute(self.attribute))
-        target = self._target(out_dir, self.path)
-        target.parent.mkdir(parents=True, exist_ok=True)
+        target = output_path(self._target(out_dir, self.path))
         if target.suffix.lower() == ".txt":
             np.savetxt(target, values, fmt="%d" if np.issubdtype(values.dtype, np.integer) else "%.6f")
         else:

@@ -34,6 +34,7 @@ from typing import Any, Callable, Sequence
 import cv2
 import numpy as np
 
+from .._files import output_path
 from ..errors import InputError, did_you_mean
 from ..frame import transform_points
 from ..io import CLOUD_EXTENSIONS, read_cloud
@@ -1046,7 +1047,7 @@ def write_error_map(path: str | os.PathLike, height_error: np.ndarray, slope_err
     right = _colourise(slope_error, limit(slope_error, slope_limit), "slope error (deg)", scale)
     gap = np.full((left.shape[0], 8, 3), 255, np.uint8)
     image = np.hstack([left, gap, right])
-    path.parent.mkdir(parents=True, exist_ok=True)
+    output_path(path)
     if not cv2.imwrite(str(path), image):
         raise InputError(f"{path}: OpenCV could not write the PNG (check the folder is writable)")
     return path

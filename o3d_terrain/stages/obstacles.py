@@ -145,7 +145,6 @@ class WriteObstacles(Writer):
 
     def write(self, frame: Frame, out_dir: Path) -> list[Path]:
         target = self._target(out_dir, self.path)
-        target.parent.mkdir(parents=True, exist_ok=True)
         frame.product("obstacles").save(target, include_indices=self.include_indices)
         return [target]
 
