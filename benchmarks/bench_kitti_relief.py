@@ -29,6 +29,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from o3d_terrain.evaluation import datasets as ds  # noqa: E402
+from o3d_terrain.evaluation.metrics import segmentation_counts  # noqa: E402
 from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
 
 #: the height fields (m) over the sensor frame's x (forward) and y (left), in metres
@@ -44,15 +45,6 @@ RELIEFS = {
     "bowl": lambda x, y: 0.004 * (x ** 2 + y ** 2),
     "crest": lambda x, y: -0.006 * (x ** 2 + y ** 2),  # the sensor on a rounded crest
 }
-
-
-def score(ground: np.ndarray, frame: ds.LabelledFrame) -> float:
-    pred = ground[frame.scored]
-    truth = frame.is_ground[frame.scored]
-    tp = int((pred & truth).sum())
-    precision = tp / max(int(pred.sum()), 1)
-    recall = tp / max(int(truth.sum()), 1)
-    return 100 * 2 * precision * recall / max(precision + recall, 1e-12)
 
 
 def main() -> None:
@@ -85,7 +77,9 @@ def main() -> None:
                 p[:, 2] += RELIEFS[name](p[:, 0], p[:, 1])
                 method = resolve_method(method_name, kind=frame.kind,
                                         sensor_height=frame.sensor_height)
-                f1.append(score(np.asarray(method(p), bool), frame))
+                ground = np.asarray(method(p), bool)
+                f1.append(100 * segmentation_counts(ground, frame.is_ground,
+                                                    scored=frame.scored).f1)
             cells.append(f"{np.mean(f1):.2f} ({' '.join(f'{v:.2f}' for v in f1)})")
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
