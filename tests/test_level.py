@@ -131,3 +131,44 @@ def test_a_cloud_in_a_cameras_frame_is_warned_of_with_its_levelling():
         o3d_terrain.segment_terrain(np.c_[forward, -right, up - 1.6])
     assert np.isin(np.flatnonzero(~box), inliers).mean() > 0.99
     assert np.isin(np.flatnonzero(box & (up > 0.3)), inliers).mean() < 0.02
+
+
+def test_a_sensor_mounted_upside_down_is_warned_of_and_levelling_gives_the_ground_back():
+    # a lidar 1.8 m above flat ground with a car on it, turned upside down about x: the ground
+    # it scans around it is then 1.8 m over its head (z and y change sign)
+    scene = o3d_terrain.synthetic.make_scene("flat")
+    cloud = sample_lidar(scene, beams=16, azimuth_steps=600, fov_deg=(-15.0, 15.0))
+    truth = ~np.asarray(cloud.is_obstacle, dtype=bool)
+    flipped = cloud.positions * np.array([1.0, -1.0, -1.0])
+    with pytest.warns(o3d_terrain.TerrainWarning,
+                      match=r"RationalBSplineTerrain: 100% of the points 2-10 m \(x/y\) from "
+                            r"the sensor lie above it and 0% below") as caught:
+        o3d_terrain.segment_terrain(flipped)
+    assert "level_cloud(cloud, up=(0, 0, -1))" in str(caught[0].message)
+    levelled, _ = o3d_terrain.level_cloud(flipped, (0.0, 0.0, -1.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # upright: no warning
+        _, inliers = o3d_terrain.segment_terrain(levelled)
+        o3d_terrain.segment_terrain(cloud.positions)
+        # an airborne tile far from the default origin is not asked
+        o3d_terrain.segment_terrain(flipped + np.array([5.0e5, 4.0e6, 0.0]))
+    ground = np.zeros(len(truth), bool)
+    ground[inliers] = True
+    assert (ground == truth).mean() > 0.98
+
+
+def test_the_upside_down_hint_counts_only_a_scan_of_the_ring_around_the_sensor():
+    from o3d_terrain.level import upside_down_hint
+
+    ring = np.c_[np.linspace(2.0, 9.0, 200), np.zeros(200), np.full(200, 1.5)]
+    assert upside_down_hint(ring) is not None
+    assert upside_down_hint(ring, sensor_origin=(0.0, 0.0, 2.0)) is None  # level with it
+    assert upside_down_hint(ring * np.array([1.0, 1.0, -1.0])) is None  # below: upright
+    assert upside_down_hint(ring[:40]) is None  # too few to say
+    far = ring + np.array([20.0, 0.0, 0.0])  # beyond 10 m: walls of a hollow, not its floor
+    assert upside_down_hint(far) is None
+    # points under the place too: a terrain patch above the origin of its frame, no sensor
+    rng = np.random.default_rng(0)
+    patch = np.c_[rng.uniform(-20, 20, (5000, 2)), rng.uniform(3.0, 4.0, 5000)]
+    assert upside_down_hint(patch) is None
+    assert upside_down_hint(patch[np.hypot(patch[:, 0], patch[:, 1]) > 2.0]) is not None

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
+from ..errors import TerrainWarning
 from ..faces import FACE_RUN, face_limit, face_run, planar_cells
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid, with_cell_planes
+from ..level import upside_down_hint
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
 from ..refine import (
@@ -176,6 +179,10 @@ class RationalBSplineTerrain(Stage):
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
+        if positions is not None:
+            hint = upside_down_hint(positions, self.sensor_origin)
+            if hint:
+                warnings.warn(f"{self.type_name}: {hint}", TerrainWarning, stacklevel=2)
         robust = positions is not None and self.method == "robust"
         # a vehicle's scan (points around sensor_origin) or a top-down one (an airborne tile)
         top_down = robust and not sensor_in_cloud(positions, self.sensor_origin)
