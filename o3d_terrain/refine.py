@@ -9,7 +9,11 @@ automatic rule (all but the feet of objects), then fits the same spline layout a
 plain least squares to the points labelled terrain alone: per cell of the grid the terrain
 points' own sample, weight 1, the thin-plate penalty bridging the cells without terrain
 points. The robust surface's wobble between sparse scan lines and its bias under noisy
-cells go; measured in docs/algorithm.md, "Refit on the terrain points".
+cells go; measured in docs/algorithm.md, "Refit on the terrain points". Where the robust
+surface was off (a roadside ditch its layout cannot follow, a sparse scanner's rings), its
+labels were too, and the refit moves the surface: it is then made again from its own labels
+(:data:`REFINE_REPEAT_MOVE`, :data:`REFINE_REPEATS`; docs/algorithm.md, "The refit made
+again").
 
 With an automatic layout the refit may use more control points than the robust fit: the
 robust loop solves a dozen times and keeps :data:`o3d_terrain.terrain.AUTO_MAX_CONTROL_POINTS`
@@ -42,7 +46,7 @@ from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
 __all__ = ["refine_surface", "refit_layout", "steep_share", "REFINE_MIN_CELLS",
-           "REFINE_MAX_CONTROL_POINTS", "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE",
+           "REFINE_MAX_CONTROL_POINTS", "REFINE_REPEAT_MOVE", "REFINE_REPEATS", "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE",
            "STEEP_SLOPE_DEG"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points:
@@ -61,18 +65,30 @@ REFINE_MAX_CONTROL_POINTS = 40
 STEEP_REFINE_MAX_CONTROL_POINTS = 64
 STEEP_SLOPE_DEG = 15.0
 STEEP_SHARE = 0.2
-#: the steep share is measured on at most this many of those cells (evenly picked)
+#: the steep share is measured on at most this many of those cells (evenly picked), and so
+#: is a refit's move
 STEEP_SAMPLE = 2000
+#: a refit that moves the surface by at least this many noise floors at the median terrain
+#: cell is made again from its own labels (:func:`refine_surface`) ...
+REFINE_REPEAT_MOVE = 0.4
+#: ... at most this many more times
+REFINE_REPEATS = 2
 
 
 def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size: float,
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
-                   cell_plane: bool = True, max_control_points: int | None = None
-                   ) -> tuple[TerrainSurface, int]:
-    """``(surface, cells)``: the surface's layout refitted to the points ``positions`` that
-    the automatic labelling against ``surface`` calls terrain (module docstring), and the
-    number of grid cells that held terrain points; ``(surface, cells)`` unchanged when fewer
-    than :data:`REFINE_MIN_CELLS` times the control points did.
+                   cell_plane: bool = True, max_control_points: int | None = None,
+                   repeats: int = REFINE_REPEATS) -> tuple[TerrainSurface, int, int]:
+    """``(surface, cells, refits)``: the surface's layout refitted to the points ``positions``
+    that the automatic labelling against ``surface`` calls terrain (module docstring), the
+    number of grid cells that held terrain points in the last refit, and how many refits were
+    made; ``(surface, cells, 0)`` unchanged when fewer than :data:`REFINE_MIN_CELLS` times the
+    control points did.
+
+    While a refit moves the surface by at least :data:`REFINE_REPEAT_MOVE` times
+    ``noise_floor`` at the median terrain cell, the labels it was made from were those of a
+    surface that was off by that much, so it is made again from its own labels, up to
+    ``repeats`` more times (docs/algorithm.md, "The refit made again").
 
     cell_size: the grid cell (m) of the samples; smoothing: the thin-plate penalty relative to
     the mean data weight per control point (as the fit's); noise_floor: the largest amount a
@@ -80,8 +96,27 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     cloud's coordinates, for the labelling (its range term and its level); cell_plane: False =
     eq. 1 about the cells' means, not their planes (as the fit's option); max_control_points:
     None = the surface's layout and knots (a layout the caller chose), a number = the
-    automatic layout up to that many per axis (:func:`refit_layout`)."""
+    automatic layout up to that many per axis (:func:`refit_layout`; a repeat keeps the
+    first refit's layout and knots)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
+    refits, cells = 0, 0
+    for _ in range(1 + max(0, int(repeats))):
+        refined, cells, move = _refit(surface, p, cell_size, smoothing, noise_floor,
+                                      sensor_origin, cell_plane, max_control_points)
+        if refined is surface:
+            break
+        surface, refits = refined, refits + 1
+        if move < REFINE_REPEAT_MOVE * noise_floor:
+            break
+    return surface, cells, refits
+
+
+def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: float,
+           noise_floor: float, sensor_origin, cell_plane: bool,
+           max_control_points: int | None) -> tuple[TerrainSurface, int, float]:
+    """One refit of :func:`refine_surface`: ``(refined, cells, move)``, move the median of
+    |refined - surface| (m) over at most :data:`STEEP_SAMPLE` of the refit's terrain cells
+    (evenly picked); ``(surface, cells, 0.0)`` when too few cells held terrain points."""
     # without the feet of objects: they lie within the threshold, and the cell samples (eq. 1
     # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
     # "Refit on the terrain points"); without the line-of-sight test, whose points the refit
@@ -92,14 +127,14 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     terrain = np.compress(labels == TerrainLabel.TERRAIN, p, axis=0)  # ~3x faster than p[mask]
     n0, n1 = surface.control_points.shape
     if len(terrain) == 0:
-        return surface, 0
+        return surface, 0, 0.0
     region = surface.region
     grid = quantize_points(terrain, cell_size=cell_size, region=region, fill_empty=False,
                            plane=cell_plane, tilt_spread=noise_floor)
     measured = grid.state == MEASURED
     cells = np.flatnonzero(measured.ravel())
     if cells.size < REFINE_MIN_CELLS * n0 * n1:
-        return surface, int(cells.size)
+        return surface, int(cells.size), 0.0
     # eq. 1 about the cell's plane (about the mean where the plane is not significant: the
     # grid's level and plane_sample are then the mean and eq. 1's sample), at least the
     # plane's height minus the noise floor
@@ -119,7 +154,11 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
         q = basis.solve_cells(cells, sample - z0, np.ones(cells.size), None, smoothing)
     refined = TerrainSurface(surface.degree, basis.knots_x, basis.knots_y, q, np.ones_like(q),
                              surface.origin, surface.cell_size)
-    return refined, int(cells.size)
+    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_SAMPLE)], grid.state.shape[1])
+    x, y = grid.x_centers[ix], grid.y_centers[iy]
+    move = np.abs(refined(x, y) - surface(x, y))
+    move = move[np.isfinite(move)]
+    return refined, int(cells.size), float(np.median(move)) if move.size else 0.0
 
 
 def steep_share(surface: TerrainSurface, grid: HeightGrid,

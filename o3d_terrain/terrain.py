@@ -149,6 +149,10 @@ class TerrainFit:
     # measured against the ground plane around the sensor before the fit; None when it was not
     # asked for (a limit given, no prior, a top-down scan)
     face_run: float | None = None
+    # RationalBSplineTerrain's refine: how many refits made ``surface`` (o3d_terrain.refine:
+    # one, more while a refit still moved the surface; 0 when too few cells held terrain
+    # points); None without a refit
+    refits: int | None = None
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import o3d_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.grid import quantize_points
-from o3d_terrain.refine import (REFINE_MAX_CONTROL_POINTS, STEEP_REFINE_MAX_CONTROL_POINTS,
-                                refine_surface, steep_share)
+from o3d_terrain.refine import (REFINE_MAX_CONTROL_POINTS, REFINE_REPEAT_MOVE,
+                                STEEP_REFINE_MAX_CONTROL_POINTS, refine_surface, steep_share)
 from o3d_terrain.stages import RationalBSplineTerrain
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_stereo
 from o3d_terrain.terrain import AUTO_MAX_CONTROL_POINTS, default_control_points
@@ -85,8 +87,9 @@ def test_too_few_terrain_cells_keep_the_robust_surface(rng):
     # 60 points over 40 x 40 m: far fewer cells with terrain points than control points
     p = np.column_stack([rng.uniform(0, 40, 60), rng.uniform(0, 40, 60), rng.normal(0, 0.01, 60)])
     surface = o3d_terrain.fit_terrain(p, refine=False, control_points=(12, 12))
-    out, cells = refine_surface(surface, p, cell_size=0.5, smoothing=0.05, noise_floor=0.03)
-    assert out is surface
+    out, cells, refits = refine_surface(surface, p, cell_size=0.5, smoothing=0.05,
+                                        noise_floor=0.03)
+    assert out is surface and refits == 0
     assert 0 < cells < 144
 
 
@@ -127,8 +130,8 @@ def test_an_automatic_layout_grows_for_the_refit_where_the_robust_one_is_capped(
     assert fit.robust_surface.control_points.shape == (AUTO_MAX_CONTROL_POINTS,) * 2
     assert fit.surface.control_points.shape == (REFINE_MAX_CONTROL_POINTS,) * 2
     # the same refit on the robust layout (what a chosen layout gets) follows the relief less
-    same, _ = refine_surface(fit.robust_surface, p, cell_size=0.5, smoothing=stage.smoothing,
-                             noise_floor=stage.noise_floor)
+    same, _, _ = refine_surface(fit.robust_surface, p, cell_size=0.5,
+                                smoothing=stage.smoothing, noise_floor=stage.noise_floor)
     assert same.control_points.shape == fit.robust_surface.control_points.shape
     gx, gy = np.meshgrid(np.linspace(-25, 25, 101), np.linspace(-25, 25, 101))
 
@@ -173,3 +176,65 @@ def test_steep_relief_gets_a_finer_refit_and_a_tilt_does_not(rng):
     p = _scan_of(relief, rng) + [5000.0, 3000.0, 0.0]
     grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
     assert max(stage.fit(grid, p).surface.control_points.shape) < STEEP_REFINE_MAX_CONTROL_POINTS
+
+
+def test_a_refit_that_moved_the_surface_is_made_again_from_its_own_labels(rng):
+    # gently rolling ground with 2 cm noise; the starting surface is the right shape 0.2 m too
+    # high: the first refit's labels (points 0.2 m below it are within the depth tolerance) give
+    # it back at the ground, a move of 0.2 m, so it is made again; that one moves it by less
+    # than REFINE_REPEAT_MOVE noise floors and ends it
+    n = 30_000
+    x, y = rng.uniform(-20, 20, n), rng.uniform(-20, 20, n)
+    z = 0.3 * np.sin(x / 6.0) + rng.normal(0, 0.02, n)
+    p = np.column_stack([x, y, z])
+    good = o3d_terrain.fit_terrain(p, refine=False, control_points=(20, 20))
+    high = dataclasses.replace(good, control_points=good.control_points + 0.2)
+    options = dict(cell_size=0.5, smoothing=0.05, noise_floor=0.03)
+    out, _, refits = refine_surface(high, p, **options)
+    assert refits == 2
+    assert abs(float(np.median(out(x, y) - 0.3 * np.sin(x / 6.0)))) < 0.03
+    once, _, refits = refine_surface(high, p, **options, repeats=0)
+    assert refits == 1
+    # from the right height one refit moves it by less than the threshold
+    _, _, refits = refine_surface(good, p, **options)
+    assert refits == 1 and REFINE_REPEAT_MOVE * 0.03 < 0.2
+
+
+def _kitti_ditch(shared_data, frame="000000"):
+    from o3d_terrain.evaluation.datasets import read_semantic_kitti_frame
+
+    folder = shared_data / "kitti_seq00_lidar"
+    fr = read_semantic_kitti_frame(folder / "velodyne" / f"{frame}.bin",
+                                   folder / "labels" / f"{frame}.label")
+    return fr
+
+
+def test_a_roadside_ditch_under_a_street_scan_takes_a_second_refit(shared_data):
+    # SemanticKITTI 000000 with a 2 m deep ditch (sigma 2.5 m) along the road 6 m to the left
+    # (benchmarks/bench_kitti_relief.py): the robust surface cannot follow it and its labels
+    # take the bases of walls and bushes beside it; the second refit, from the first refit's
+    # labels, gives them back (measured: ground F1 95.83 with one refit, 96.83 with two).
+    # The level frame keeps one refit (its first refit moves the surface ~9 mm).
+    from o3d_terrain.evaluation.metrics import segmentation_counts
+    from o3d_terrain.segment import segment_points
+    from o3d_terrain.stages import GridQuantize
+
+    fr = _kitti_ditch(shared_data)
+    stage = RationalBSplineTerrain()
+    quantize = GridQuantize()
+    level = stage.fit(quantize.grid(fr.positions), fr.positions)
+    assert level.refits == 1
+    p = fr.positions.copy()
+    p[:, 2] += -2.0 * np.exp(-(p[:, 1] - 6.0) ** 2 / (2 * 2.5 ** 2))
+    fit = stage.fit(quantize.grid(p), p)
+    assert fit.refits == 2
+
+    def f1(surface):
+        labels, _ = segment_points(surface, p, threshold=None)
+        ground = labels == o3d_terrain.TerrainLabel.TERRAIN
+        return segmentation_counts(ground[fr.scored], fr.is_ground[fr.scored]).f1
+
+    one, _, _ = refine_surface(fit.robust_surface, p, cell_size=0.5, smoothing=stage.smoothing,
+                               noise_floor=stage.noise_floor, repeats=0,
+                               max_control_points=STEEP_REFINE_MAX_CONTROL_POINTS)
+    assert f1(fit.surface) > f1(one) + 0.005

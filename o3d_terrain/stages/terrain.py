@@ -63,8 +63,9 @@ class RationalBSplineTerrain(Stage):
     asymmetric weights, a thin-plate penalty for cells without data and a consistent rational
     fit; ``method: paper`` runs Algorithm V-B.1 as printed (see docs/algorithm.md). With
     ``refine`` (default) the robust fit's surface is then fitted again to the points its
-    automatic labels call terrain (o3d_terrain.refine; docs/algorithm.md, "Refit on the
-    terrain points").
+    automatic labels call terrain, and again from the refit's own labels while that moves it
+    (o3d_terrain.refine; docs/algorithm.md, "Refit on the terrain points", "The refit made
+    again").
     """
 
     reads = ("grid",)
@@ -131,10 +132,13 @@ class RationalBSplineTerrain(Stage):
         True,
         help="robust method, with the points: label them against the fitted surface (the "
              "automatic rule of Segmenter) and fit the same layout again to the terrain points "
-             "alone, eq. 1 about each cell's plane at most noise_floor below it; removes the "
-             "robust fit's wobble between sparse scan lines and its bias under noisy cells "
-             "(o3d_terrain.refine); not with a range-noise model, whose per-cell noise the "
-             "robust fit weighs; false = the robust fit's surface",
+             "alone, eq. 1 about each cell's plane at most noise_floor below it, and again "
+             "from its own labels while a refit moves the surface by 0.4 noise_floor or more "
+             "at the median terrain cell (at most twice more); removes the robust fit's "
+             "wobble between sparse scan lines and its bias under noisy cells, and the ground "
+             "it lost beside relief its layout cannot follow (o3d_terrain.refine); not with a "
+             "range-noise model, whose per-cell noise the robust fit weighs; false = the "
+             "robust fit's surface",
     )
     range_noise: float = option(
         0.0, unit="1/m", rule=NON_NEGATIVE,
@@ -246,16 +250,16 @@ class RationalBSplineTerrain(Stage):
         fit = dataclasses.replace(fit, relief_share=share, face_run=run)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
-        # an automatic layout may grow for the refit's one solve (o3d_terrain.refine), more
-        # on steep relief; a layout the user chose stays
+        # an automatic layout may grow for the refit's solve (o3d_terrain.refine), more on
+        # steep relief; a layout the user chose stays
         most = None
         if self.control_points is None:
             most = STEEP_REFINE_MAX_CONTROL_POINTS if steep else REFINE_MAX_CONTROL_POINTS
-        refined, _ = refine_surface(surface, positions, cell_size=grid.cell_size,
-                                    smoothing=self.smoothing, noise_floor=self.noise_floor,
-                                    sensor_origin=self.sensor_origin,
-                                    cell_plane=self.cell_plane, max_control_points=most)
-        return dataclasses.replace(fit, surface=refined, robust_surface=surface)
+        refined, _, refits = refine_surface(
+            surface, positions, cell_size=grid.cell_size, smoothing=self.smoothing,
+            noise_floor=self.noise_floor, sensor_origin=self.sensor_origin,
+            cell_plane=self.cell_plane, max_control_points=most)
+        return dataclasses.replace(fit, surface=refined, robust_surface=surface, refits=refits)
 
     @property
     def slope_limit(self) -> float:
