@@ -152,12 +152,21 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
                       knots)
     with one_blas_thread():  # a small banded solve: BLAS threads cost more than they give
         q = basis.solve_cells(cells, sample - z0, np.ones(cells.size), None, smoothing)
-    refined = TerrainSurface(surface.degree, basis.knots_x, basis.knots_y, q, np.ones_like(q),
+    ones = np.ones_like(q)
+    refined = TerrainSurface(surface.degree, basis.knots_x, basis.knots_y, q, ones,
                              surface.origin, surface.cell_size)
-    ix, iy = np.divmod(cells[::max(1, cells.size // STEEP_SAMPLE)], grid.state.shape[1])
-    x, y = grid.x_centers[ix], grid.y_centers[iy]
-    move = np.abs(refined(x, y) - surface(x, y))
-    move = move[np.isfinite(move)]
+    # the move, at the cells from the solve's basis: a repeat's surface before has the same
+    # knots and R = 1, so the move is the basis at the cells times the control points' change
+    picked = cells[::max(1, cells.size // STEEP_SAMPLE)]
+    if not surface.is_rational and surface.control_points.shape == q.shape and \
+            np.array_equal(surface.knots_x, basis.knots_x) and \
+            np.array_equal(surface.knots_y, basis.knots_y):
+        move = basis.evaluate_at_cells(q - surface.control_points, ones, picked)
+    else:
+        ix, iy = np.divmod(picked, grid.state.shape[1])
+        move = basis.evaluate_at_cells(q, ones, picked) + z0 - \
+            surface(grid.x_centers[ix], grid.y_centers[iy])
+    move = np.abs(move[np.isfinite(move)])
     return refined, int(cells.size), float(np.median(move)) if move.size else 0.0
 
 

@@ -254,6 +254,40 @@ def test_local_planes_equal_the_point_by_point_reference(rng):
         assert not got[bush].any()
 
 
+def test_local_planes_later_rounds_equal_the_reference_round_for_round(rng):
+    """After the first round each candidate's neighbour sums are kept and the terrain taken
+    in the round before is added to them (its sub-cells read again where much was taken):
+    after every round the labels equal the point-by-point reference's, on a dense cloud (sums
+    over sub-cells) and a sparse one (every point read), candidates in a patch with a little
+    terrain among them taken up over several rounds, 0.4 m bushes left out."""
+    for density, radius, side, patch_side, kept in ((400.0, 0.3, 12.0, 4.0, 0.02),
+                                                    (1.0, 2.0, 40.0, 20.0, 0.3)):
+        n = int(side * side * density)
+        x, y = rng.uniform(0, side, n), rng.uniform(0, side, n)
+        h = 1.0 + np.tan(np.radians(20)) * x + 0.3 * np.sin(y) + rng.normal(0, 0.02, n)
+        patch = (np.abs(x - side / 2) < patch_side / 2) & (np.abs(y - side / 2) < patch_side / 2)
+        bush = patch & (rng.uniform(size=n) < 0.1)
+        h[bush] += 0.4
+        p = np.column_stack([x, y, np.zeros(n)])
+        terrain = ~patch | (~bush & (rng.uniform(size=n) < kept))
+        candidates = np.flatnonzero(~terrain)
+        expected = terrain
+        changed = 0
+        for rounds in range(1, 21):
+            before = expected
+            expected = _local_planes_reference(p, h, before, candidates, radius, 0.05, rounds=1)
+            got = terrain.copy()
+            taken = local_plane_terrain(p, h, got, candidates, radius=radius, threshold=0.05,
+                                        rounds=rounds)
+            np.testing.assert_array_equal(got, expected)
+            assert taken == int((got & ~terrain).sum())
+            if (expected == before).all():
+                break
+            changed += 1
+        assert changed >= 3
+        assert not got[bush].any() and got[patch & ~bush].mean() > 0.7
+
+
 def test_local_planes_recover_ridges_in_widened_blocks(rng, monkeypatch):
     """A sparse 35° mountain slope with 2 m ridges 16 m apart (the 6 m control spacing
     undercuts them beyond the widened threshold): the local planes recover ridge ground, and

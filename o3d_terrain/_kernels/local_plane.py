@@ -7,7 +7,7 @@ fitted (least squares in the heights above the surface) through the terrain poin
 of it in x and in y: the plane is interpolated, not extrapolated). Rounds repeat until none
 changes or ``max_rounds``; each round decides from the terrain of the round before, so the
 order of the candidates does not matter, and after the first it looks again only at the
-candidates with new terrain in their 3 x 3 cells (the others would decide as before).
+candidates that gained terrain neighbours (the others would decide as before).
 
 The neighbours are found in a grid of cells at least ``radius`` wide over the candidates'
 bounding box grown by ``radius`` (its side grows so that it holds at most about 4096 cells per
@@ -23,6 +23,20 @@ labels are those of reading every point (the sums differ in rounding only): a fa
 at ~1,400 points/m2 with a 1.39 m radius reads ~16,000 points per candidate one by one, a
 few hundred sub-cells and ~2,000 points this way. A sparse cloud (about 10 points a cell or
 fewer) is read point by point, in the order of the points, as without sub-cells.
+
+Only the first round reads each candidate's neighbours this way. Each candidate keeps its
+sums (about itself) from round to round, and a later round adds to them the terrain taken in
+the round before that lies within ``radius``, each such point tested (they are kept by cell);
+a candidate with none of them near decides as before, and one with more of them around than
+a read of its sub-cells costs (about a split-th of its block's points) reads them again
+instead. The points summed are those of reading every point, in another order: the labels
+are equal but for the sums' rounding (a candidate whose height lies within it of
+``threshold`` above its plane). On SemanticKITTI 000000 with a 2 m roadside ditch (24,084
+candidates, radius 2.7 m, 20 rounds) the kernel read each candidate's sub-cells ~9 times,
+~1.0 s; now once, ~0.13 s, ~0.1 s of it the first round. Adding the run of a row's sub-cells
+that lies wholly within the circle at once, from sums over the row's first sub-cells, was
+measured slower there: the terrain boxes already pass over a sub-cell in a few nanoseconds,
+and the ~460 points a candidate reads one by one, which runs do not spare, take as long.
 """
 
 import math
@@ -34,6 +48,11 @@ import numpy as np
 _MAX_CELLS = 4096.0
 #: sub-cells per side of a neighbour cell at most (:func:`_split`)
 _MAX_SPLIT = 16
+#: a later round reads a candidate's sub-cells anew, rather than testing the terrain points
+#: taken in the round before around it, when these are more than this many times a split-th of
+#: the points of its 3 x 3 cells: about what a read costs at the split :func:`_split` chooses
+#: (9 split^2 sub-cells + 8 P / split points, P a cell's points, is about 12 P / split there)
+_FRESH_READ = 1.0
 
 
 @numba.njit(cache=True, inline="always")
@@ -102,6 +121,190 @@ def _add_point(s, q, px, py, ph, agg, ref, box, sums):
         agg[s, 6] += h
         agg[s, 7] += u * h
         agg[s, 8] += v * h
+
+
+@numba.njit(cache=True, inline="always")
+def _gather(k, xi, yi, cx, cy, nx, ny, slot, x0, y0, cell, split, radius, first, px, py, ph,
+            pt, agg, ref, box, sums, sides):
+    """Into ``sums[k]`` (count, x, y, x^2, xy, y^2, h, xh, yh of the offsets from (xi, yi))
+    and ``sides[k]`` (east, west, north, south: some point lies beyond (xi, yi) that way):
+    the terrain points within ``radius`` of (xi, yi) in the 3 x 3 cells about cell (cx, cy),
+    read from the sub-cells (module docstring)."""
+    kk = split * split
+    r2 = radius * radius
+    m = 0.0
+    sx = sy = sxx = sxy = syy = sh = sxh = syh = 0.0
+    east = west = north = south = False
+    for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+        for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+            c = slot[gx * ny + gy]
+            if c < 0:
+                continue
+            # the sub-cells the circle's box overlaps (one more each side: a point's
+            # sub-cell comes from its own rounding)
+            a0, a1 = _sub_range(xi, radius, x0, cell, gx, split)
+            b0, b1 = _sub_range(yi, radius, y0, cell, gy, split)
+            for a in range(a0, a1):
+                for s in range(c * kk + a * split + b0, c * kk + a * split + b1):
+                    # the terrain box's nearest and farthest offsets: every terrain point
+                    # of the sub-cell lies within the radius, or none does, or it is read
+                    # point by point (exact: |x_j - x_i| is monotone in x_j in floating
+                    # point too)
+                    ex = box[s, 1] - xi
+                    wx = box[s, 0] - xi
+                    ey = box[s, 3] - yi
+                    wy = box[s, 2] - yi
+                    if not ex >= wx:
+                        continue  # no terrain point
+                    nearx = wx if wx > 0.0 else (-ex if ex < 0.0 else 0.0)
+                    neary = wy if wy > 0.0 else (-ey if ey < 0.0 else 0.0)
+                    if nearx * nearx + neary * neary > r2:
+                        continue
+                    farx = max(-wx, ex)
+                    fary = max(-wy, ey)
+                    if split > 1 and farx * farx + fary * fary <= r2:
+                        ax = ref[s, 0] - xi
+                        ay = ref[s, 1] - yi
+                        ms = agg[s, 0]
+                        su = agg[s, 1]
+                        sv = agg[s, 2]
+                        sw = agg[s, 6]
+                        m += ms
+                        sx += su + ms * ax
+                        sy += sv + ms * ay
+                        sxx += agg[s, 3] + 2.0 * ax * su + ms * ax * ax
+                        sxy += agg[s, 4] + ax * sv + ay * su + ms * ax * ay
+                        syy += agg[s, 5] + 2.0 * ay * sv + ms * ay * ay
+                        sh += sw
+                        sxh += agg[s, 7] + ax * sw
+                        syh += agg[s, 8] + ay * sw
+                        east = east or ex > 0.0
+                        west = west or wx < 0.0
+                        north = north or ey > 0.0
+                        south = south or wy < 0.0
+                        continue
+                    for q in range(first[s], first[s + 1]):
+                        if not pt[q]:
+                            continue
+                        dx = px[q] - xi
+                        dy = py[q] - yi
+                        if dx * dx + dy * dy > r2:
+                            continue
+                        hj = ph[q]
+                        m += 1.0
+                        sx += dx
+                        sy += dy
+                        sxx += dx * dx
+                        sxy += dx * dy
+                        syy += dy * dy
+                        sh += hj
+                        sxh += dx * hj
+                        syh += dy * hj
+                        east = east or dx > 0.0
+                        west = west or dx < 0.0
+                        north = north or dy > 0.0
+                        south = south or dy < 0.0
+    sums[k, 0] = m
+    sums[k, 1] = sx
+    sums[k, 2] = sy
+    sums[k, 3] = sxx
+    sums[k, 4] = sxy
+    sums[k, 5] = syy
+    sums[k, 6] = sh
+    sums[k, 7] = sxh
+    sums[k, 8] = syh
+    sides[k, 0] = east
+    sides[k, 1] = west
+    sides[k, 2] = north
+    sides[k, 3] = south
+
+
+@numba.njit(cache=True, inline="always")
+def _add_fresh(k, xi, yi, cx, cy, nx, ny, slot, radius, fresh_first, fresh, sums, sides):
+    """Add to ``sums[k]`` and ``sides[k]`` (:func:`_gather`) the terrain points of the round
+    before (``fresh``: x, y, height, by cell from ``fresh_first``) within ``radius`` of
+    (xi, yi) in the 3 x 3 cells about cell (cx, cy). Returns whether any was."""
+    r2 = radius * radius
+    m = sums[k, 0]
+    sx = sums[k, 1]
+    sy = sums[k, 2]
+    sxx = sums[k, 3]
+    sxy = sums[k, 4]
+    syy = sums[k, 5]
+    sh = sums[k, 6]
+    sxh = sums[k, 7]
+    syh = sums[k, 8]
+    east = sides[k, 0]
+    west = sides[k, 1]
+    north = sides[k, 2]
+    south = sides[k, 3]
+    grew = False
+    for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+        for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+            c = slot[gx * ny + gy]
+            if c < 0:
+                continue
+            for t in range(fresh_first[c], fresh_first[c + 1]):
+                dx = fresh[t, 0] - xi
+                dy = fresh[t, 1] - yi
+                if dx * dx + dy * dy > r2:
+                    continue
+                hj = fresh[t, 2]
+                grew = True
+                m += 1.0
+                sx += dx
+                sy += dy
+                sxx += dx * dx
+                sxy += dx * dy
+                syy += dy * dy
+                sh += hj
+                sxh += dx * hj
+                syh += dy * hj
+                east = east or dx > 0.0
+                west = west or dx < 0.0
+                north = north or dy > 0.0
+                south = south or dy < 0.0
+    if grew:
+        sums[k, 0] = m
+        sums[k, 1] = sx
+        sums[k, 2] = sy
+        sums[k, 3] = sxx
+        sums[k, 4] = sxy
+        sums[k, 5] = syy
+        sums[k, 6] = sh
+        sums[k, 7] = sxh
+        sums[k, 8] = syh
+        sides[k, 0] = east
+        sides[k, 1] = west
+        sides[k, 2] = north
+        sides[k, 3] = south
+    return grew
+
+
+@numba.njit(cache=True, inline="always")
+def _on_plane(k, h, threshold, min_points, sums, sides):
+    """Whether a point at height ``h`` lies at most ``threshold`` above the least-squares plane
+    of the neighbours summed in ``sums[k]`` and ``sides[k]`` (:func:`_gather`): at least
+    ``min_points`` of them, some on each side, not all on a line."""
+    m = sums[k, 0]
+    if m < min_points or not (sides[k, 0] and sides[k, 1] and sides[k, 2] and sides[k, 3]):
+        return False
+    sx = sums[k, 1]
+    sy = sums[k, 2]
+    sxx = sums[k, 3]
+    sxy = sums[k, 4]
+    syy = sums[k, 5]
+    sh = sums[k, 6]
+    sxh = sums[k, 7]
+    syh = sums[k, 8]
+    # intercept of the least-squares plane h = a + b dx + c dy (Cramer's rule)
+    det = (m * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy)
+           + sy * (sx * sxy - sxx * sy))
+    if not abs(det) > 1e-9 * m * max(sxx * syy, 1e-300):
+        return False  # the neighbours lie on a line
+    num = (sh * (sxx * syy - sxy * sxy) - sx * (sxh * syy - sxy * syh)
+           + sy * (sxh * sxy - sxx * syh))
+    return h - num / det <= threshold
 
 
 @numba.njit(cache=True)
@@ -227,121 +430,82 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         for q in range(first[s], first[s + 1]):
             if pt[q]:
                 _add_point(s, q, px, py, ph, agg, ref, box, split > 1)
-    r2 = radius * radius
+    # each candidate's neighbour sums (:func:`_gather`), kept from round to round: a later
+    # round adds the terrain taken in the round before, at a few nanoseconds a point, where
+    # reading the sub-cells again costs a few microseconds (module docstring)
+    sums = np.zeros((candidates.size, 9))
+    sides = np.zeros((candidates.size, 4), np.bool_)
+    # the terrain taken in the round before (x, y, height), by occupied cell: that of cell c
+    # is fresh[fresh_first[c]:fresh_first[c + 1]]
+    fresh_first = np.zeros(occupied + 1, np.int64)
+    fresh = np.empty((candidates.size, 3))
+    fresh_fill = np.empty(occupied, np.int64)
+    # the occupied cells with such terrain in their 3 x 3 cells: the candidates of the others
+    # gained no neighbour
+    touched = np.zeros(occupied, np.bool_)
     accepted = 0
     new = np.empty(candidates.size, np.int64)
-    # a candidate's decision changes only when terrain was added within its 3 x 3 cells
-    dirty = np.ones(nx * ny, np.bool_)
-    for _ in range(max_rounds):
+    for round_ in range(max_rounds):
         added = 0
         for k in range(candidates.size):
             i = candidates[k]
-            if terrain[i] or cell_of[i] < 0:
+            if terrain[i] or cell_of[i] < 0 or (round_ > 0 and not touched[slot[cell_of[i]]]):
                 continue
             cx = cell_of[i] // ny
             cy = cell_of[i] % ny
-            seen = False
-            for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
-                for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
-                    seen = seen or dirty[gx * ny + gy]
-            if not seen:
-                continue
             xi = positions[i, 0]
             yi = positions[i, 1]
-            m = 0.0
-            sx = sy = sxx = sxy = syy = sh = sxh = syh = 0.0
-            east = west = north = south = False
-            for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
-                for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
-                    c = slot[gx * ny + gy]
-                    if c < 0:
-                        continue
-                    # the sub-cells the circle's box overlaps (one more each side: a point's
-                    # sub-cell comes from its own rounding)
-                    a0, a1 = _sub_range(xi, radius, x0, cell, gx, split)
-                    b0, b1 = _sub_range(yi, radius, y0, cell, gy, split)
-                    for a in range(a0, a1):
-                        for s in range(c * kk + a * split + b0, c * kk + a * split + b1):
-                            # the terrain box's nearest and farthest offsets: every terrain point
-                            # of the sub-cell lies within the radius, or none does, or it is read
-                            # point by point (exact: |x_j - x_i| is monotone in x_j in floating
-                            # point too)
-                            ex = box[s, 1] - xi
-                            wx = box[s, 0] - xi
-                            ey = box[s, 3] - yi
-                            wy = box[s, 2] - yi
-                            if not ex >= wx:
-                                continue  # no terrain point
-                            nearx = wx if wx > 0.0 else (-ex if ex < 0.0 else 0.0)
-                            neary = wy if wy > 0.0 else (-ey if ey < 0.0 else 0.0)
-                            if nearx * nearx + neary * neary > r2:
-                                continue
-                            farx = max(-wx, ex)
-                            fary = max(-wy, ey)
-                            if split > 1 and farx * farx + fary * fary <= r2:
-                                ax = ref[s, 0] - xi
-                                ay = ref[s, 1] - yi
-                                ms = agg[s, 0]
-                                su = agg[s, 1]
-                                sv = agg[s, 2]
-                                sw = agg[s, 6]
-                                m += ms
-                                sx += su + ms * ax
-                                sy += sv + ms * ay
-                                sxx += agg[s, 3] + 2.0 * ax * su + ms * ax * ax
-                                sxy += agg[s, 4] + ax * sv + ay * su + ms * ax * ay
-                                syy += agg[s, 5] + 2.0 * ay * sv + ms * ay * ay
-                                sh += sw
-                                sxh += agg[s, 7] + ax * sw
-                                syh += agg[s, 8] + ay * sw
-                                east = east or ex > 0.0
-                                west = west or wx < 0.0
-                                north = north or ey > 0.0
-                                south = south or wy < 0.0
-                                continue
-                            for q in range(first[s], first[s + 1]):
-                                if not pt[q]:
-                                    continue
-                                dx = px[q] - xi
-                                dy = py[q] - yi
-                                if dx * dx + dy * dy > r2:
-                                    continue
-                                hj = ph[q]
-                                m += 1.0
-                                sx += dx
-                                sy += dy
-                                sxx += dx * dx
-                                sxy += dx * dy
-                                syy += dy * dy
-                                sh += hj
-                                sxh += dx * hj
-                                syh += dy * hj
-                                east = east or dx > 0.0
-                                west = west or dx < 0.0
-                                north = north or dy > 0.0
-                                south = south or dy < 0.0
-            if m < min_points or not (east and west and north and south):
-                continue
-            # intercept of the least-squares plane h = a + b dx + c dy (Cramer's rule)
-            det = (m * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy)
-                   + sy * (sx * sxy - sxx * sy))
-            if not abs(det) > 1e-9 * m * max(sxx * syy, 1e-300):
-                continue  # the neighbours lie on a line
-            num = (sh * (sxx * syy - sxy * sxy) - sx * (sxh * syy - sxy * syh)
-                   + sy * (sxh * sxy - sxx * syh))
-            if heights[i] - num / det <= threshold:
+            read = round_ == 0
+            if not read:
+                n_fresh = 0
+                n_near = 0
+                for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+                    for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+                        c = slot[gx * ny + gy]
+                        if c >= 0:
+                            n_fresh += fresh_first[c + 1] - fresh_first[c]
+                            n_near += first[(c + 1) * kk] - first[c * kk]
+                if n_fresh == 0:
+                    continue
+                # much terrain taken around: reading the sub-cells again costs less
+                read = n_fresh * split > _FRESH_READ * n_near
+                if not read and not _add_fresh(k, xi, yi, cx, cy, nx, ny, slot, radius,
+                                               fresh_first, fresh, sums, sides):
+                    continue  # no new neighbour: it decides as before
+            if read:
+                _gather(k, xi, yi, cx, cy, nx, ny, slot, x0, y0, cell, split, radius, first,
+                        px, py, ph, pt, agg, ref, box, sums, sides)
+            if _on_plane(k, heights[i], threshold, min_points, sums, sides):
                 new[added] = i
                 added += 1
         if added == 0:
             break
-        dirty[:] = False
+        fresh_first[:] = 0
+        touched[:] = False
         for k in range(added):
             j = new[k]
             terrain[j] = True
-            dirty[cell_of[j]] = True
+            cx = cell_of[j] // ny
+            cy = cell_of[j] % ny
+            for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+                for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+                    if slot[gx * ny + gy] >= 0:
+                        touched[slot[gx * ny + gy]] = True
+            # the sub-cells too, for the candidates that read them again
             q = at[j]
             pt[q] = True
             _add_point(sub_at[q], q, px, py, ph, agg, ref, box, split > 1)
+            fresh_first[slot[cell_of[j]] + 1] += 1
+        for c in range(occupied):
+            fresh_first[c + 1] += fresh_first[c]
+        fresh_fill[:] = fresh_first[:-1]
+        for k in range(added):
+            j = new[k]
+            c = slot[cell_of[j]]
+            fresh[fresh_fill[c], 0] = positions[j, 0]
+            fresh[fresh_fill[c], 1] = positions[j, 1]
+            fresh[fresh_fill[c], 2] = heights[j]
+            fresh_fill[c] += 1
         accepted += added
     return accepted
 
