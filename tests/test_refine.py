@@ -10,8 +10,13 @@ import pytest
 import o3d_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.grid import quantize_points
-from o3d_terrain.refine import (REFINE_MAX_CONTROL_POINTS, REFINE_REPEAT_MOVE,
-                                STEEP_REFINE_MAX_CONTROL_POINTS, refine_surface, steep_share)
+from o3d_terrain.refine import (
+    REFINE_MAX_CONTROL_POINTS,
+    REFINE_REPEAT_MOVE,
+    STEEP_REFINE_MAX_CONTROL_POINTS,
+    refine_surface,
+    steep_share,
+)
 from o3d_terrain.stages import RationalBSplineTerrain
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_stereo
 from o3d_terrain.terrain import AUTO_MAX_CONTROL_POINTS, default_control_points
@@ -189,11 +194,11 @@ def test_a_refit_that_moved_the_surface_is_made_again_from_its_own_labels(rng):
     p = np.column_stack([x, y, z])
     good = o3d_terrain.fit_terrain(p, refine=False, control_points=(20, 20))
     high = dataclasses.replace(good, control_points=good.control_points + 0.2)
-    options = dict(cell_size=0.5, smoothing=0.05, noise_floor=0.03)
+    options = {"cell_size": 0.5, "smoothing": 0.05, "noise_floor": 0.03}
     out, _, refits = refine_surface(high, p, **options)
     assert refits == 2
     assert abs(float(np.median(out(x, y) - 0.3 * np.sin(x / 6.0)))) < 0.03
-    once, _, refits = refine_surface(high, p, **options, repeats=0)
+    _, _, refits = refine_surface(high, p, **options, repeats=0)
     assert refits == 1
     # from the right height one refit moves it by less than the threshold
     _, _, refits = refine_surface(good, p, **options)
