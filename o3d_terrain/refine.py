@@ -46,8 +46,8 @@ from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
 __all__ = ["refine_surface", "refit_layout", "steep_share", "REFINE_MIN_CELLS",
-           "REFINE_MAX_CONTROL_POINTS", "REFINE_REPEAT_MOVE", "REFINE_REPEATS", "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE",
-           "STEEP_SLOPE_DEG"]
+           "REFINE_MAX_CONTROL_POINTS", "REFINE_REPEAT_MOVE", "REFINE_REPEATS",
+           "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE", "STEEP_SLOPE_DEG"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points:
 #: fewer and the robust surface is kept (the penalty alone would shape the refit)
@@ -81,9 +81,9 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
                    repeats: int = REFINE_REPEATS) -> tuple[TerrainSurface, int, int]:
     """``(surface, cells, refits)``: the surface's layout refitted to the points ``positions``
     that the automatic labelling against ``surface`` calls terrain (module docstring), the
-    number of grid cells that held terrain points in the last refit, and how many refits were
-    made; ``(surface, cells, 0)`` unchanged when fewer than :data:`REFINE_MIN_CELLS` times the
-    control points did.
+    number of grid cells that held terrain points in the last refit made, and how many refits
+    were made; ``(surface, cells, 0)`` unchanged when fewer than :data:`REFINE_MIN_CELLS` times
+    the control points did.
 
     While a refit moves the surface by at least :data:`REFINE_REPEAT_MOVE` times
     ``noise_floor`` at the median terrain cell, the labels it was made from were those of a
@@ -101,11 +101,12 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     p = np.ascontiguousarray(positions, dtype=np.float64)
     refits, cells = 0, 0
     for _ in range(1 + max(0, int(repeats))):
-        refined, cells, move = _refit(surface, p, cell_size, smoothing, noise_floor,
-                                      sensor_origin, cell_plane, max_control_points)
-        if refined is surface:
+        refined, got, move = _refit(surface, p, cell_size, smoothing, noise_floor,
+                                    sensor_origin, cell_plane, max_control_points)
+        if refined is surface:  # too few terrain cells: the surface so far stays
+            cells = cells if refits else got
             break
-        surface, refits = refined, refits + 1
+        surface, cells, refits = refined, got, refits + 1
         if move < REFINE_REPEAT_MOVE * noise_floor:
             break
     return surface, cells, refits
