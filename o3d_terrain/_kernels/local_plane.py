@@ -109,18 +109,22 @@ def _add_point(s, q, px, py, ph, agg, ref, box, sums):
     box[s, 2] = min(box[s, 2], y)
     box[s, 3] = max(box[s, 3], y)
     if sums:
-        u = x - ref[s, 0]
-        v = y - ref[s, 1]
-        h = ph[q]
-        agg[s, 0] += 1.0
-        agg[s, 1] += u
-        agg[s, 2] += v
-        agg[s, 3] += u * u
-        agg[s, 4] += u * v
-        agg[s, 5] += v * v
-        agg[s, 6] += h
-        agg[s, 7] += u * h
-        agg[s, 8] += v * h
+        _add_moments(agg, s, x - ref[s, 0], y - ref[s, 1], ph[q])
+
+
+@numba.njit(cache=True, inline="always")
+def _add_moments(sums, k, u, v, h):
+    """Add a point at offset (u, v) with height ``h`` to the row ``sums[k]`` (count, u, v, u^2,
+    uv, v^2, h, uh, vh): a sub-cell's sums about its corner, a candidate's about itself."""
+    sums[k, 0] += 1.0
+    sums[k, 1] += u
+    sums[k, 2] += v
+    sums[k, 3] += u * u
+    sums[k, 4] += u * v
+    sums[k, 5] += v * v
+    sums[k, 6] += h
+    sums[k, 7] += u * h
+    sums[k, 8] += v * h
 
 
 @numba.njit(cache=True, inline="always")
@@ -223,21 +227,9 @@ def _gather(k, xi, yi, cx, cy, nx, ny, slot, x0, y0, cell, split, radius, first,
 def _add_fresh(k, xi, yi, cx, cy, nx, ny, slot, radius, fresh_first, fresh, sums, sides):
     """Add to ``sums[k]`` and ``sides[k]`` (:func:`_gather`) the terrain points of the round
     before (``fresh``: x, y, height, by cell from ``fresh_first``) within ``radius`` of
-    (xi, yi) in the 3 x 3 cells about cell (cx, cy). Returns whether any was."""
+    (xi, yi) in the 3 x 3 cells about cell (cx, cy). Returns whether any was. (A few points a
+    candidate: added into the arrays, where :func:`_gather`'s hot loop sums in registers.)"""
     r2 = radius * radius
-    m = sums[k, 0]
-    sx = sums[k, 1]
-    sy = sums[k, 2]
-    sxx = sums[k, 3]
-    sxy = sums[k, 4]
-    syy = sums[k, 5]
-    sh = sums[k, 6]
-    sxh = sums[k, 7]
-    syh = sums[k, 8]
-    east = sides[k, 0]
-    west = sides[k, 1]
-    north = sides[k, 2]
-    south = sides[k, 3]
     grew = False
     for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
         for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
@@ -249,35 +241,12 @@ def _add_fresh(k, xi, yi, cx, cy, nx, ny, slot, radius, fresh_first, fresh, sums
                 dy = fresh[t, 1] - yi
                 if dx * dx + dy * dy > r2:
                     continue
-                hj = fresh[t, 2]
                 grew = True
-                m += 1.0
-                sx += dx
-                sy += dy
-                sxx += dx * dx
-                sxy += dx * dy
-                syy += dy * dy
-                sh += hj
-                sxh += dx * hj
-                syh += dy * hj
-                east = east or dx > 0.0
-                west = west or dx < 0.0
-                north = north or dy > 0.0
-                south = south or dy < 0.0
-    if grew:
-        sums[k, 0] = m
-        sums[k, 1] = sx
-        sums[k, 2] = sy
-        sums[k, 3] = sxx
-        sums[k, 4] = sxy
-        sums[k, 5] = syy
-        sums[k, 6] = sh
-        sums[k, 7] = sxh
-        sums[k, 8] = syh
-        sides[k, 0] = east
-        sides[k, 1] = west
-        sides[k, 2] = north
-        sides[k, 3] = south
+                _add_moments(sums, k, dx, dy, fresh[t, 2])
+                sides[k, 0] = sides[k, 0] or dx > 0.0
+                sides[k, 1] = sides[k, 1] or dx < 0.0
+                sides[k, 2] = sides[k, 2] or dy > 0.0
+                sides[k, 3] = sides[k, 3] or dy < 0.0
     return grew
 
 
