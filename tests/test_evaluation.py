@@ -554,6 +554,50 @@ def test_kitti_lines_keep_every_kth_scan_line_with_its_labels(tmp_path, monkeypa
         run_all.load_frames("kitti-lines:8")
 
 
+def test_kitti_fov_keeps_the_points_ahead_with_their_labels(tmp_path, monkeypatch):
+    run_all = _run_all()
+    # one ring of 72 points every 5° of azimuth from -177.5° to 177.5° (none on a boundary)
+    azimuth = np.radians(np.arange(72) * 5.0 - 177.5)
+    positions = np.stack([10 * np.cos(azimuth), 10 * np.sin(azimuth), np.full(72, -1.7)], 1)
+    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(72) % 3 == 0,
+                             scored=np.arange(72) % 5 != 0, obstacle=np.arange(72) % 3 == 1)
+    for fov, half in run_all.KITTI_FOVS.items():
+        crop = run_all.fov_frame(frame, half)
+        keep = np.abs(np.degrees(azimuth)) <= half
+        assert keep.sum() == round(72 * half / 180), fov
+        assert np.array_equal(crop.positions, positions[keep])
+        for mask in ("is_ground", "scored", "obstacle"):
+            assert np.array_equal(getattr(crop, mask), getattr(frame, mask)[keep])
+    # the camera's 90°: only points ahead (x > 0) within 45° of the x axis
+    crop = run_all.fov_frame(frame, run_all.KITTI_FOVS["90"])
+    assert (crop.positions[:, 0] > 0).all()
+    assert (np.abs(crop.positions[:, 1]) < crop.positions[:, 0]).all()
+
+    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
+    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
+    recorded, _ = run_all.load_frames("kitti")
+    whole, failures = run_all.load_frames("kitti-fov:360")
+    assert not failures and all(np.array_equal(a.positions, b.positions)
+                                for a, b in zip(recorded, whole))
+    with pytest.raises(ValueError, match="unknown field of view '45'"):
+        run_all.load_frames("kitti-fov:45")
+
+
+def test_kitti_fov_section_renders_only_when_run():
+    run_all = _run_all()
+    results = _no_results()
+    title = "### SemanticKITTI frames cropped to a forward field of view"
+    assert title not in run_all.render(results)
+    for fov, f1 in (("360", 0.9), ("180", 0.85), ("90", 0.8), ("60", 0.7)):
+        results["segment"][f"kitti-fov:{fov}/o3d_terrain"] = {
+            "frames": [{"name": "000000", "points": 10, "seconds": 0.01, "f1": f1}],
+            "failures": []}
+    text = run_all.render(results)
+    assert title in text
+    assert "| method | 360° (as recorded) | 180° | 90° | 60° |" in text
+    assert "| **o3d_terrain** (`segment_terrain`) | 90.0 | 85.0 | 80.0 | 70.0 |" in text
+
+
 def test_kitti_lines_section_renders_only_when_run():
     run_all = _run_all()
     results = _no_results()
