@@ -24,6 +24,19 @@ FILLED = _grid.FILLED
 MAX_CELLS = 50_000_000
 #: a region wider than this (m) in the too-many-cells error gets a hint about millimetres
 UNIT_HINT_SPAN = 20_000.0
+#: an isolated low point (:func:`isolated_low_points`): the lowest point of a cell whose
+#: other points, at least LOW_MIN_POINTS - 1 of them, lie in a layer of standard deviation
+#: at most LOW_SPREAD (m), and which lies more than LOW_GAP (m) plus three of those deviations
+#: below their mean: a return from below the ground (multipath off a wet road, glass), not
+#: ground; on a cell of ground the layer is the ground
+LOW_GAP = 0.3
+LOW_SPREAD = 0.1
+LOW_MIN_POINTS = 4
+#: :func:`without_low_returns` acts when at least this share of the measured cells have an
+#: isolated low point: a clean SemanticKITTI frame has 0.3-0.4 %, the synthetic scenes at most
+#: 1.0 %; the fit itself copes with up to about 0.5 % of the points low (about 4 % of the
+#: cells), and from 1 % fails (docs/algorithm.md, "Returns from below the ground")
+LOW_MIN_SHARE = 0.02
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,6 +68,10 @@ class HeightGrid:
     level: np.ndarray | None = None
     plane_sample: np.ndarray | None = None
     tilt_spread: float | None = None  # the tilt_spread the planes were made with (m)
+    # quantize_points' options, so that the same grid can be made again from fewer points
+    # (requantize)
+    min_points: int = 1
+    fill_empty: bool = True
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -205,7 +222,72 @@ def quantize_points(
                       layer_count if layer else None, layer_sum if layer else None,
                       layer_above if layer else None, level if plane else None,
                       plane_sample if plane else None,
-                      float(tilt_spread) if plane else None)
+                      float(tilt_spread) if plane else None, int(min_points), bool(fill_empty))
+
+
+def isolated_low_cells(grid: HeightGrid, *, gap: float = LOW_GAP, spread: float = LOW_SPREAD,
+                       min_points: int = LOW_MIN_POINTS) -> np.ndarray:
+    """(nx, ny) bool: the MEASURED cells of at least ``min_points`` points whose lowest point
+    lies more than ``gap`` + 3 s below the mean of the cell's other points, s (at most
+    ``spread``) their standard deviation: the cell's other points are a thin layer (the
+    ground) and its lowest point lies well below it. From the grid's own per-cell sums (the
+    count, the mean, the lowest point and eq. 1's Z = mean - sigma where that lies above the
+    lowest point), so no pass over the points
+    (:func:`o3d_terrain._kernels.grid.isolated_low`)."""
+    if grid.lowest is None or grid.mean is None:
+        return np.zeros(grid.shape, bool)
+    cells, _ = _grid.isolated_low(
+        np.ascontiguousarray(grid.state), np.ascontiguousarray(grid.count),
+        np.ascontiguousarray(grid.z, dtype=np.float64),
+        np.ascontiguousarray(grid.lowest, dtype=np.float64),
+        np.ascontiguousarray(grid.mean, dtype=np.float64), float(gap), float(spread),
+        int(min_points))
+    return cells
+
+
+def isolated_low_points(grid: HeightGrid, positions: np.ndarray, cells: np.ndarray | None = None
+                        ) -> np.ndarray:
+    """(N,) bool: the lowest point of each of the ``cells`` ((nx, ny) bool; default
+    :func:`isolated_low_cells`) among ``positions``, the points the grid was made from."""
+    if cells is None:
+        cells = isolated_low_cells(grid)
+    p = np.asarray(positions, dtype=np.float64)
+    out = np.zeros(len(p), bool)
+    if not cells.any():
+        return out
+    flat = grid.cell_of(p[:, 0], p[:, 1])
+    inside = np.flatnonzero(flat >= 0)
+    c = flat[inside]
+    hit = cells.ravel()[c] & (p[inside, 2] == grid.lowest.ravel()[c])
+    out[inside[hit]] = True
+    return out
+
+
+def requantize(grid: HeightGrid, positions: np.ndarray) -> HeightGrid:
+    """``grid`` made again from ``positions`` (e.g. the points it was made from without some):
+    the same cells, options, ground-layer thickness and cells' planes."""
+    return quantize_points(positions, cell_size=grid.cell_size, region=grid.region,
+                           min_points=grid.min_points, fill_empty=grid.fill_empty,
+                           layer=grid.layer, plane=grid.plane_sample is not None,
+                           tilt_spread=grid.tilt_spread or 0.0)
+
+
+def without_low_returns(grid: HeightGrid, positions: np.ndarray, *,
+                        min_share: float = LOW_MIN_SHARE
+                        ) -> tuple[HeightGrid, np.ndarray, int]:
+    """``(grid, positions, dropped)``: when at least ``min_share`` of the grid's MEASURED cells
+    are :func:`isolated_low_cells`, the grid made again (:func:`requantize`) from the points
+    without their isolated low points (:func:`isolated_low_points`), those points and how many
+    were left out; else the inputs and 0."""
+    cells = isolated_low_cells(grid)
+    found = int(cells.sum())
+    if found == 0 or found < min_share * int(np.count_nonzero(grid.state == MEASURED)):
+        return grid, positions, 0
+    low = isolated_low_points(grid, positions, cells)
+    if not low.any():
+        return grid, positions, 0
+    kept = np.ascontiguousarray(np.asarray(positions, dtype=np.float64)[~low])
+    return requantize(grid, kept), kept, int(low.sum())
 
 
 def _stray_points(x: np.ndarray, y: np.ndarray, cell_size: float) -> str | None:

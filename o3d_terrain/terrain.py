@@ -153,6 +153,10 @@ class TerrainFit:
     # one, more while a refit still moved the surface; 0 when too few cells held terrain
     # points); None without a refit
     refits: int | None = None
+    # RationalBSplineTerrain on a vehicle's scan: how many isolated low returns the fit left
+    # out (o3d_terrain.grid.without_low_returns; 0 when too few cells had one); None when it
+    # did not look (a top-down scan, low_returns off, no points)
+    low_returns: int | None = None
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,

@@ -39,6 +39,36 @@ def _cell(x, y, x_min, y_min, cell_size, nx, ny):
 
 
 @numba.njit(cache=True)
+def isolated_low(state, count, z, lowest, mean, gap, spread, min_points):
+    """(cells, found): per cell (arrays of one shape, read flat) whether it is MEASURED, holds
+    at least ``min_points`` points and its lowest point lies more than ``gap`` + 3 s below the
+    mean of its other points, s <= ``spread`` their standard deviation (from the count, the
+    mean, the lowest point and eq. 1's Z = mean - sigma, where Z lies above the lowest point;
+    heights relative to the cell's mean), and how many cells do."""
+    out = np.zeros(state.size, np.bool_)
+    st = state.ravel()
+    ct = count.ravel()
+    zf = z.ravel()
+    lf = lowest.ravel()
+    mf = mean.ravel()
+    found = 0
+    for c in range(st.size):
+        n = ct[c]
+        if st[c] != MEASURED or n < min_points or n < 2 or not zf[c] > lf[c]:
+            continue
+        sigma = mf[c] - zf[c]
+        low = lf[c] - mf[c]  # < 0
+        others = n - 1.0
+        rest_mean = -low / others
+        rest_var = (n * sigma * sigma - low * low) / others - rest_mean * rest_mean
+        rest_sigma = math.sqrt(rest_var) if rest_var > 0.0 else 0.0
+        if rest_sigma <= spread and low < rest_mean - gap - 3.0 * rest_sigma:
+            out[c] = True
+            found += 1
+    return out.reshape(state.shape), found
+
+
+@numba.njit(cache=True)
 def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
     """:func:`_cell` of every point given as separate x and y arrays."""
     out = np.empty(x.shape[0], np.int64)

@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import TerrainWarning
 from ..faces import FACE_RUN, face_limit, face_run, planar_cells
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
-from ..grid import HeightGrid, with_cell_planes
+from ..grid import HeightGrid, with_cell_planes, without_low_returns
 from ..level import upside_down_hint
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
@@ -140,6 +140,15 @@ class RationalBSplineTerrain(Stage):
              "range-noise model, whose per-cell noise the robust fit weighs; false = the "
              "robust fit's surface",
     )
+    low_returns: bool = option(
+        True,
+        help="robust method, a vehicle's scan (points around sensor_origin): when at least "
+             "2 % of the measured cells have an isolated low point (more than 0.3 m below the "
+             "thin layer of the cell's other points: a return from below the ground, "
+             "multipath off a wet road or glass), fit without those points; they are still "
+             "labelled (docs/algorithm.md, 'Returns from below the ground'); false = fit "
+             "every point",
+    )
     range_noise: float = option(
         0.0, unit="1/m", rule=NON_NEGATIVE,
         help="range-dependent sensor noise: noise along the viewing ray = range_noise * "
@@ -169,7 +178,12 @@ class RationalBSplineTerrain(Stage):
     def run(self, frame: Frame) -> Frame:
         fit = self.fit(frame.product("grid"), frame.positions,
                        frame.products.get("range_noise"))
-        return frame.with_products(surface=fit.surface, terrain_fit=fit)
+        frame = frame.with_products(surface=fit.surface, terrain_fit=fit)
+        if fit.low_returns:
+            frame = frame.with_note(
+                f"{self.type_name}: fitted without {fit.low_returns} isolated low return(s), "
+                f"from below the ground (low_returns)")
+        return frame
 
     def fit(self, grid: HeightGrid, positions: np.ndarray | None = None,
             range_noise: RangeNoise | None = None) -> TerrainFit:
@@ -180,6 +194,12 @@ class RationalBSplineTerrain(Stage):
         the grid's cell size."""
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
+        robust = positions is not None and self.method == "robust"
+        # a vehicle's scan (points around sensor_origin) or a top-down one (an airborne tile)
+        top_down = robust and not sensor_in_cloud(positions, self.sensor_origin)
+        low_returns = None
+        if robust and not top_down and self.low_returns:
+            grid, positions, low_returns = without_low_returns(grid, positions)
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
@@ -187,9 +207,6 @@ class RationalBSplineTerrain(Stage):
             hint = upside_down_hint(positions, self.sensor_origin)
             if hint:
                 warnings.warn(f"{self.type_name}: {hint}", TerrainWarning, stacklevel=2)
-        robust = positions is not None and self.method == "robust"
-        # a vehicle's scan (points around sensor_origin) or a top-down one (an airborne tile)
-        top_down = robust and not sensor_in_cloud(positions, self.sensor_origin)
         if control_points is None and top_down:
             # a top-down scan (an airborne tile) is not fitted at a vehicle's frame rate
             control_points = default_control_points(grid, self.degree,
@@ -247,7 +264,7 @@ class RationalBSplineTerrain(Stage):
         # road's top at the grid's axes")
         steep = (share is not None and share >= STEEP_SHARE) or faces
         surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
-        fit = dataclasses.replace(fit, relief_share=share, face_run=run)
+        fit = dataclasses.replace(fit, relief_share=share, face_run=run, low_returns=low_returns)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
         # an automatic layout may grow for the refit's solve (o3d_terrain.refine), more on
