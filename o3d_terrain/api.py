@@ -90,7 +90,7 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
                     terrain_prior, range_noise, sensor_origin, max_slope_deg, cell_plane,
-                    refine, knots):
+                    refine, knots, low_returns=True):
     """The GridQuantize and RationalBSplineTerrain stages of the api's options (cached)."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
@@ -104,7 +104,8 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
                      control_points=_sequence(control_points),
                      degree=degree, method=method, smoothing=smoothing,
                      terrain_prior=terrain_prior, max_slope_deg=max_slope_deg,
-                     cell_plane=cell_plane, refine=refine, knots=knots, **noise)
+                     cell_plane=cell_plane, refine=refine, knots=knots,
+                     low_returns=low_returns, **noise)
     return quantize, terrain
 
 
@@ -196,7 +197,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 sensor_origin: Sequence[float] | None = None,
                 max_slope_deg: float | None = None,
                 cell_plane: bool = True, refine: bool = True,
-                knots: str = "auto") -> TerrainSurface:
+                knots: str = "auto", low_returns: bool = True) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -242,6 +243,11 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     more measured cells and wider where it has few, when the layout's uniform spacing is
     over 1.5 times 2 cells (a wide frame: the control points follow the ground near the
     sensor; docs/algorithm.md, "Knots where the data are"); "uniform" = evenly spaced.
+    low_returns: (default; robust method, a vehicle's scan) when at least 2 % of the grid's
+    measured cells have an isolated low point (more than 0.3 m below the thin layer of the
+    cell's other points: a return from below the ground, multipath off a wet road or glass),
+    fit without those points (:func:`o3d_terrain.grid.without_low_returns`; docs/algorithm.md,
+    "Returns from below the ground"); False = fit every point.
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
@@ -249,7 +255,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     positions, frame, origin = _input(cloud, sensor_origin)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
-                                        max_slope_deg, cell_plane, refine, knots)
+                                        max_slope_deg, cell_plane, refine, knots, low_returns)
     if frame is None:  # numpy input: the stages' functions without a frame
         return _array_fit(positions, quantize, terrain)
     return _terrain_frame(frame, quantize, terrain).product("surface")
@@ -267,7 +273,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     cell_plane: bool = True, refine: bool = True,
                     knots: str = "auto",
                     foot_lines: float = FOOT_LINES,
-                    line_of_sight: bool = True) -> tuple[TerrainSurface, np.ndarray]:
+                    line_of_sight: bool = True,
+                    low_returns: bool = True) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -302,7 +309,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     (a top-down scan); give it when you know it. Other options as in
     :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``;
     ``refine`` refits the surface to the points its automatic labels call terrain before
-    these labels are made).
+    these labels are made; ``low_returns`` leaves isolated returns from below the ground out
+    of the fit, not out of the labels).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
@@ -314,7 +322,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                        line_of_sight=line_of_sight)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
-                                        max_slope_deg, cell_plane, refine, knots)
+                                        max_slope_deg, cell_plane, refine, knots, low_returns)
     if frame is None:  # numpy input: the stages' functions without a frame
         surface = _array_fit(positions, quantize, terrain)
         labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))

@@ -123,6 +123,19 @@ def test_a_lidar_scan_with_returns_from_below_the_ground():
     assert rmse(fit) < 0.02
     every_point = RationalBSplineTerrain(low_returns=False).fit(grid, p)
     assert every_point.low_returns is None and rmse(every_point) > 0.1
+    # the drop-in functions take the option too
+    import o3d_terrain
+
+    for on in (True, False):
+        surface = o3d_terrain.fit_terrain(p, low_returns=on)
+        error = np.sqrt(np.mean((surface(x, y) - cloud.terrain_height(x, y)) ** 2))
+        assert (error < 0.02) == on
+    # the terrain points not moved, found as terrain
+    kept_terrain = np.flatnonzero(terrain & ~moved)
+    for on in (True, False):
+        _, inliers = o3d_terrain.segment_terrain(p, low_returns=on)
+        found = np.isin(kept_terrain, inliers).mean()
+        assert (found > 0.99) == on, (on, found)
 
 
 def test_a_street_scan_with_returns_from_below_the_ground(shared_data):
