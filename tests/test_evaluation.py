@@ -598,6 +598,49 @@ def test_kitti_fov_section_renders_only_when_run():
     assert "| **o3d_terrain** (`segment_terrain`) | 90.0 | 85.0 | 80.0 | 70.0 |" in text
 
 
+def test_kitti_low_moves_points_down_and_leaves_them_unscored(tmp_path, monkeypatch):
+    run_all = _run_all()
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(-10, 10, (5000, 3))
+    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(5000) % 3 == 0,
+                             scored=np.arange(5000) % 5 != 0)
+    for name, share in run_all.KITTI_LOW.items():
+        low = run_all.low_frame(frame, share)
+        drop = frame.positions[:, 2] - low.positions[:, 2]
+        moved = drop > 0
+        assert abs(moved.mean() - share) < 0.005, name
+        assert ((drop[moved] >= 0.5) & (drop[moved] <= 3.0)).all()
+        assert np.array_equal(low.positions[:, :2], positions[:, :2])
+        assert np.array_equal(low.scored, frame.scored & ~moved)
+        assert np.array_equal(low.is_ground, frame.is_ground)
+    assert np.array_equal(run_all.low_frame(frame, 0.01).positions,
+                          run_all.low_frame(frame, 0.01).positions)  # seeded
+
+    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
+    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
+    recorded, _ = run_all.load_frames("kitti")
+    as_recorded, failures = run_all.load_frames("kitti-low:0")
+    assert not failures and all(np.array_equal(a.positions, b.positions)
+                                for a, b in zip(recorded, as_recorded))
+    with pytest.raises(ValueError, match="unknown share of low returns '5'"):
+        run_all.load_frames("kitti-low:5")
+
+
+def test_kitti_low_section_renders_only_when_run():
+    run_all = _run_all()
+    results = _no_results()
+    title = "### SemanticKITTI frames with returns from below the ground"
+    assert title not in run_all.render(results)
+    for share, f1 in (("0", 0.98), ("0.5", 0.97), ("1", 0.96), ("2", 0.9)):
+        results["segment"][f"kitti-low:{share}/o3d_terrain"] = {
+            "frames": [{"name": "000000", "points": 10, "seconds": 0.01, "f1": f1}],
+            "failures": []}
+    text = run_all.render(results)
+    assert title in text
+    assert "| method | 0 % (as recorded) | 0.5 % | 1 % | 2 % |" in text
+    assert "| **o3d_terrain** (`segment_terrain`) | 98.0 | 97.0 | 96.0 | 90.0 |" in text
+
+
 def test_kitti_lines_section_renders_only_when_run():
     run_all = _run_all()
     results = _no_results()
