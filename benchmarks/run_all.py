@@ -830,8 +830,8 @@ def _low_table(results) -> list[str]:
         "under the ground (`benchmarks/run_all.py`: `low_frame`); the moved points are not "
         "scored, the others keep their labels. Every method runs with its defaults. Ground "
         "F1 (%), mean over the 3 frames. Ours leaves isolated low returns out of the fit "
-        "(docs/algorithm.md, \"Returns from below the ground\", with a second draw); at 2 % "
-        "its fit still fails.")
+        "(docs/algorithm.md, \"Returns from below the ground\", with a second draw and "
+        "higher shares).")
 
 
 def _figure_tilt(results, figures) -> str | None:

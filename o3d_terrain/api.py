@@ -246,8 +246,9 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     low_returns: (default; robust method, a vehicle's scan) when at least 2 % of the grid's
     measured cells have an isolated low point (more than 0.3 m below the thin layer of the
     cell's other points: a return from below the ground, multipath off a wet road or glass),
-    fit without those points (:func:`o3d_terrain.grid.without_low_returns`; docs/algorithm.md,
-    "Returns from below the ground"); False = fit every point.
+    fit without the points well below the thin layer of their cell
+    (:func:`o3d_terrain.grid.without_low_returns`; docs/algorithm.md, "Returns from below the
+    ground"); False = fit every point.
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).

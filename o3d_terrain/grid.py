@@ -24,11 +24,12 @@ FILLED = _grid.FILLED
 MAX_CELLS = 50_000_000
 #: a region wider than this (m) in the too-many-cells error gets a hint about millimetres
 UNIT_HINT_SPAN = 20_000.0
-#: an isolated low point (:func:`isolated_low_points`): the lowest point of a cell whose
-#: other points, at least LOW_MIN_POINTS - 1 of them, lie in a layer of standard deviation
-#: at most LOW_SPREAD (m), and which lies more than LOW_GAP (m) plus three of those deviations
-#: below their mean: a return from below the ground (multipath off a wet road, glass), not
-#: ground; on a cell of ground the layer is the ground
+#: an isolated low point: in a cell of at least LOW_MIN_POINTS points whose heights form a
+#: layer of spread at most LOW_SPREAD (m), a point more than LOW_GAP (m) plus three of those
+#: spreads below it (:func:`isolated_low_cells`: the lowest point against the others' mean and
+#: standard deviation; :func:`isolated_low_points`: every point against the median and the
+#: median absolute deviation): a return from below the ground (multipath off a wet road,
+#: glass), not ground; on a cell of ground the layer is the ground
 LOW_GAP = 0.3
 LOW_SPREAD = 0.1
 LOW_MIN_POINTS = 4
@@ -245,22 +246,22 @@ def isolated_low_cells(grid: HeightGrid, *, gap: float = LOW_GAP, spread: float 
     return cells
 
 
-def isolated_low_points(grid: HeightGrid, positions: np.ndarray, cells: np.ndarray | None = None
+def isolated_low_points(grid: HeightGrid, positions: np.ndarray, *, gap: float = LOW_GAP,
+                        spread: float = LOW_SPREAD, min_points: int = LOW_MIN_POINTS
                         ) -> np.ndarray:
-    """(N,) bool: the lowest point of each of the ``cells`` ((nx, ny) bool; default
-    :func:`isolated_low_cells`) among ``positions``, the points the grid was made from."""
-    if cells is None:
-        cells = isolated_low_cells(grid)
+    """(N,) bool: among ``positions``, the points the grid was made from, those more than
+    ``gap`` + 3 s below the median height of their cell, s (at most ``spread``) 1.4826 times
+    the cell's median absolute deviation, in cells of at least ``min_points`` points: a thin
+    layer and returns well below it; the median ignores up to half a cell's points, so a cell
+    with several such returns gives them all (:func:`isolated_low_cells`, from the cells'
+    sums, sees a cell's lowest point only; :func:`o3d_terrain._kernels.grid.low_in_cells`:
+    one pass to sort the points by cell, then each cell's median)."""
     p = np.asarray(positions, dtype=np.float64)
-    out = np.zeros(len(p), bool)
-    if not cells.any():
-        return out
-    flat = grid.cell_of(p[:, 0], p[:, 1])
-    inside = np.flatnonzero(flat >= 0)
-    c = flat[inside]
-    hit = cells.ravel()[c] & (p[inside, 2] == grid.lowest.ravel()[c])
-    out[inside[hit]] = True
-    return out
+    cells = grid.cell_of(p[:, 0], p[:, 1])
+    z = np.ascontiguousarray(p[:, 2])
+    cells = np.where(np.isfinite(z), cells, -1)
+    return _grid.low_in_cells(z, cells, grid.nx * grid.ny, float(gap), float(spread),
+                              int(min_points))
 
 
 def requantize(grid: HeightGrid, positions: np.ndarray) -> HeightGrid:
@@ -276,14 +277,15 @@ def without_low_returns(grid: HeightGrid, positions: np.ndarray, *,
                         min_share: float = LOW_MIN_SHARE
                         ) -> tuple[HeightGrid, np.ndarray, int]:
     """``(grid, positions, dropped)``: when at least ``min_share`` of the grid's MEASURED cells
-    are :func:`isolated_low_cells`, the grid made again (:func:`requantize`) from the points
-    without their isolated low points (:func:`isolated_low_points`), those points and how many
-    were left out; else the inputs and 0."""
+    are :func:`isolated_low_cells` (from the cells' sums: a cheap test that the scan has many),
+    the grid made again (:func:`requantize`) from the points without the isolated low ones
+    (:func:`isolated_low_points`), those points and how many were left out; else the inputs
+    and 0."""
     cells = isolated_low_cells(grid)
     found = int(cells.sum())
     if found == 0 or found < min_share * int(np.count_nonzero(grid.state == MEASURED)):
         return grid, positions, 0
-    low = isolated_low_points(grid, positions, cells)
+    low = isolated_low_points(grid, positions)
     if not low.any():
         return grid, positions, 0
     kept = np.ascontiguousarray(np.asarray(positions, dtype=np.float64)[~low])

@@ -45,6 +45,17 @@ def test_the_lowest_point_under_a_thin_layer_is_isolated(rng):
     assert np.all(points[low, 2] == -1.0)
 
 
+def test_several_low_returns_in_one_cell_are_all_found(rng):
+    # a dense cell near the sensor: 40 ground points and three returns from below; the lowest
+    # point against the others' mean and spread (the cheap test of the cells' sums) misses
+    # the cell, since the other two returns widen that spread; the median does not
+    heights = list(rng.normal(0.0, 0.02, 40)) + [-0.9, -1.6, -2.4]
+    points = _cell(rng, heights)
+    grid = quantize_points(points, cell_size=1.0, region=(0.0, 1.0, 0.0, 1.0))
+    assert not isolated_low_cells(grid).any()
+    assert np.flatnonzero(isolated_low_points(grid, points)).tolist() == [40, 41, 42]
+
+
 def test_isolated_at_projected_heights(rng):
     # the other points' spread from the cell's sums, relative to its mean: no cancellation
     # at heights of hundreds of metres
@@ -139,10 +150,10 @@ def test_a_lidar_scan_with_returns_from_below_the_ground():
 
 
 def test_a_street_scan_with_returns_from_below_the_ground(shared_data):
-    # SemanticKITTI 000000 with 1 % of its points moved 0.5-3 m down (multipath off a wet
-    # road): the fit with every point lay up to 0.7 m under the ground (ground F1 75.0 on
-    # the points not moved); without the isolated low returns it scores as the clean frame
-    # (98.42; docs/algorithm.md, "Returns from below the ground")
+    # SemanticKITTI 000000 with 1 % or 2 % of its points moved 0.5-3 m down (multipath off
+    # a wet road): the fit with every point lay up to 0.7 m under the ground (ground F1 75.0
+    # and 90.5 on the points not moved); without the isolated low returns 98.43 and 97.45,
+    # the clean frame 98.42 (docs/algorithm.md, "Returns from below the ground")
     import o3d_terrain
     from o3d_terrain.evaluation.datasets import read_semantic_kitti_frame
     from o3d_terrain.evaluation.metrics import segmentation_counts
@@ -150,15 +161,16 @@ def test_a_street_scan_with_returns_from_below_the_ground(shared_data):
     folder = shared_data / "kitti_seq00_lidar"
     fr = read_semantic_kitti_frame(folder / "velodyne" / "000000.bin",
                                    folder / "labels" / "000000.label")
-    rng = np.random.default_rng(0)
-    moved = rng.random(len(fr.positions)) < 0.01
-    p = fr.positions.copy()
-    p[moved, 2] -= rng.uniform(0.5, 3.0, moved.sum())
-    _, inliers = o3d_terrain.segment_terrain(p)
-    ground = np.zeros(len(p), bool)
-    ground[inliers] = True
-    scored = fr.scored & ~moved
-    assert segmentation_counts(ground[scored], fr.is_ground[scored]).f1 > 0.98
+    for share, least in ((0.01, 0.98), (0.02, 0.97)):
+        rng = np.random.default_rng(0)
+        moved = rng.random(len(fr.positions)) < share
+        p = fr.positions.copy()
+        p[moved, 2] -= rng.uniform(0.5, 3.0, moved.sum())
+        _, inliers = o3d_terrain.segment_terrain(p)
+        ground = np.zeros(len(p), bool)
+        ground[inliers] = True
+        scored = fr.scored & ~moved
+        assert segmentation_counts(ground[scored], fr.is_ground[scored]).f1 > least, share
 
 
 @pytest.mark.parametrize("share", [0.0, 0.02])

@@ -69,6 +69,60 @@ def isolated_low(state, count, z, lowest, mean, gap, spread, min_points):
 
 
 @numba.njit(cache=True)
+def low_in_cells(z, cells, m, gap, spread, min_points):
+    """(N,) bool: the points more than ``gap`` + 3 s below the median height of their cell,
+    s = 1.4826 x the cell's median absolute deviation, in the cells (flat indices ``cells``,
+    one per point, < 0 for none; ``m`` cells) of at least ``min_points`` points where s is
+    at most ``spread``: a thin layer (the ground) with points well below it. The median and
+    its deviation ignore up to half the cell's points, so a cell with several such points
+    shows them all."""
+    n = z.shape[0]
+    count = np.zeros(m + 1, np.int64)
+    for k in range(n):
+        c = cells[k]
+        if c >= 0:
+            count[c + 1] += 1
+    for c in range(m):
+        count[c + 1] += count[c]
+    start = count[:m].copy()
+    order = np.empty(count[m], np.int64)
+    for k in range(n):
+        c = cells[k]
+        if c >= 0:
+            order[start[c]] = k
+            start[c] += 1
+    out = np.zeros(n, np.bool_)
+    most = 0
+    for c in range(m):
+        most = max(most, count[c + 1] - count[c])
+    values = np.empty(most)
+    deviations = np.empty(most)
+    for c in range(m):
+        first = count[c]
+        size = count[c + 1] - first
+        if size < min_points or size < 2:
+            continue
+        for j in range(size):
+            values[j] = z[order[first + j]]
+        v = np.sort(values[:size])
+        half = size // 2
+        median = v[half] if size % 2 == 1 else 0.5 * (v[half - 1] + v[half])
+        for j in range(size):
+            deviations[j] = abs(v[j] - median)
+        d = np.sort(deviations[:size])
+        mad = d[half] if size % 2 == 1 else 0.5 * (d[half - 1] + d[half])
+        s = 1.4826 * mad
+        if s > spread:
+            continue
+        limit = median - gap - 3.0 * s
+        for j in range(size):
+            k = order[first + j]
+            if z[k] < limit:
+                out[k] = True
+    return out
+
+
+@numba.njit(cache=True)
 def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
     """:func:`_cell` of every point given as separate x and y arrays."""
     out = np.empty(x.shape[0], np.int64)

@@ -145,9 +145,9 @@ class RationalBSplineTerrain(Stage):
         help="robust method, a vehicle's scan (points around sensor_origin): when at least "
              "2 % of the measured cells have an isolated low point (more than 0.3 m below the "
              "thin layer of the cell's other points: a return from below the ground, "
-             "multipath off a wet road or glass), fit without those points; they are still "
-             "labelled (docs/algorithm.md, 'Returns from below the ground'); false = fit "
-             "every point",
+             "multipath off a wet road or glass), fit without the points more than 0.3 m "
+             "below the thin layer of their cell (its median); they are still labelled "
+             "(docs/algorithm.md, 'Returns from below the ground'); false = fit every point",
     )
     range_noise: float = option(
         0.0, unit="1/m", rule=NON_NEGATIVE,
