@@ -237,13 +237,12 @@ def isolated_low_cells(grid: HeightGrid, *, gap: float = LOW_GAP, spread: float 
     (:func:`o3d_terrain._kernels.grid.isolated_low`)."""
     if grid.lowest is None or grid.mean is None:
         return np.zeros(grid.shape, bool)
-    cells, _ = _grid.isolated_low(
+    return _grid.isolated_low(
         np.ascontiguousarray(grid.state), np.ascontiguousarray(grid.count),
         np.ascontiguousarray(grid.z, dtype=np.float64),
         np.ascontiguousarray(grid.lowest, dtype=np.float64),
         np.ascontiguousarray(grid.mean, dtype=np.float64), float(gap), float(spread),
         int(min_points))
-    return cells
 
 
 def isolated_low_points(grid: HeightGrid, positions: np.ndarray, *, gap: float = LOW_GAP,

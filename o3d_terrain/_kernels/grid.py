@@ -40,18 +40,17 @@ def _cell(x, y, x_min, y_min, cell_size, nx, ny):
 
 @numba.njit(cache=True)
 def isolated_low(state, count, z, lowest, mean, gap, spread, min_points):
-    """(cells, found): per cell (arrays of one shape, read flat) whether it is MEASURED, holds
-    at least ``min_points`` points and its lowest point lies more than ``gap`` + 3 s below the
-    mean of its other points, s <= ``spread`` their standard deviation (from the count, the
-    mean, the lowest point and eq. 1's Z = mean - sigma, where Z lies above the lowest point;
-    heights relative to the cell's mean), and how many cells do."""
+    """Per cell (arrays of one shape, read flat) whether it is MEASURED, holds at least
+    ``min_points`` points and its lowest point lies more than ``gap`` + 3 s below the mean of
+    its other points, s <= ``spread`` their standard deviation (from the count, the mean, the
+    lowest point and eq. 1's Z = mean - sigma, where Z lies above the lowest point; heights
+    relative to the cell's mean)."""
     out = np.zeros(state.size, np.bool_)
     st = state.ravel()
     ct = count.ravel()
     zf = z.ravel()
     lf = lowest.ravel()
     mf = mean.ravel()
-    found = 0
     for c in range(st.size):
         n = ct[c]
         if st[c] != MEASURED or n < min_points or n < 2 or not zf[c] > lf[c]:
@@ -64,8 +63,7 @@ def isolated_low(state, count, z, lowest, mean, gap, spread, min_points):
         rest_sigma = math.sqrt(rest_var) if rest_var > 0.0 else 0.0
         if rest_sigma <= spread and low < rest_mean - gap - 3.0 * rest_sigma:
             out[c] = True
-            found += 1
-    return out.reshape(state.shape), found
+    return out.reshape(state.shape)
 
 
 @numba.njit(cache=True)
@@ -96,7 +94,6 @@ def low_in_cells(z, cells, m, gap, spread, min_points):
     for c in range(m):
         most = max(most, count[c + 1] - count[c])
     values = np.empty(most)
-    deviations = np.empty(most)
     for c in range(m):
         first = count[c]
         size = count[c + 1] - first
@@ -104,14 +101,8 @@ def low_in_cells(z, cells, m, gap, spread, min_points):
             continue
         for j in range(size):
             values[j] = z[order[first + j]]
-        v = np.sort(values[:size])
-        half = size // 2
-        median = v[half] if size % 2 == 1 else 0.5 * (v[half - 1] + v[half])
-        for j in range(size):
-            deviations[j] = abs(v[j] - median)
-        d = np.sort(deviations[:size])
-        mad = d[half] if size % 2 == 1 else 0.5 * (d[half - 1] + d[half])
-        s = 1.4826 * mad
+        median = np.median(values[:size])
+        s = 1.4826 * np.median(np.abs(values[:size] - median))
         if s > spread:
             continue
         limit = median - gap - 3.0 * s
