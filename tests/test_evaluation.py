@@ -491,6 +491,19 @@ def _no_results() -> dict:
             "threads": 1, "repeats": 2, "segment": {}, "stages": {}, "terrain": None}
 
 
+def _check_as_recorded(run_all, tmp_path, monkeypatch, recorded, unknown, message):
+    """The data set ``recorded`` (e.g. "kitti-lines:64") gives the SemanticKITTI frames as
+    ``kitti`` does, and ``unknown`` fails with ``message``."""
+    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
+    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
+    frames, _ = run_all.load_frames("kitti")
+    same, failures = run_all.load_frames(recorded)
+    assert not failures and all(np.array_equal(a.positions, b.positions)
+                                for a, b in zip(frames, same))
+    with pytest.raises(ValueError, match=message):
+        run_all.load_frames(unknown)
+
+
 def test_kitti_tilt_rotates_about_the_sensor_origin_and_keeps_labels(tmp_path, monkeypatch):
     run_all = _run_all()
     s10, c10 = math.sin(math.radians(10)), math.cos(math.radians(10))
@@ -544,14 +557,8 @@ def test_kitti_lines_keep_every_kth_scan_line_with_its_labels(tmp_path, monkeypa
         assert np.array_equal(getattr(half, mask), getattr(frame, mask)[keep])
     assert np.array_equal(run_all.line_frame(frame, 1).positions, positions)
 
-    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
-    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
-    recorded, _ = run_all.load_frames("kitti")
-    as_recorded, failures = run_all.load_frames("kitti-lines:64")
-    assert not failures and all(np.array_equal(a.positions, b.positions)
-                                for a, b in zip(recorded, as_recorded))
-    with pytest.raises(ValueError, match="unknown line count '8'"):
-        run_all.load_frames("kitti-lines:8")
+    _check_as_recorded(run_all, tmp_path, monkeypatch, "kitti-lines:64", "kitti-lines:8",
+                       "unknown line count '8'")
 
 
 def test_kitti_fov_keeps_the_points_ahead_with_their_labels(tmp_path, monkeypatch):
@@ -573,29 +580,8 @@ def test_kitti_fov_keeps_the_points_ahead_with_their_labels(tmp_path, monkeypatc
     assert (crop.positions[:, 0] > 0).all()
     assert (np.abs(crop.positions[:, 1]) < crop.positions[:, 0]).all()
 
-    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
-    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
-    recorded, _ = run_all.load_frames("kitti")
-    whole, failures = run_all.load_frames("kitti-fov:360")
-    assert not failures and all(np.array_equal(a.positions, b.positions)
-                                for a, b in zip(recorded, whole))
-    with pytest.raises(ValueError, match="unknown field of view '45'"):
-        run_all.load_frames("kitti-fov:45")
-
-
-def test_kitti_fov_section_renders_only_when_run():
-    run_all = _run_all()
-    results = _no_results()
-    title = "### SemanticKITTI frames cropped to a forward field of view"
-    assert title not in run_all.render(results)
-    for fov, f1 in (("360", 0.9), ("180", 0.85), ("90", 0.8), ("60", 0.7)):
-        results["segment"][f"kitti-fov:{fov}/o3d_terrain"] = {
-            "frames": [{"name": "000000", "points": 10, "seconds": 0.01, "f1": f1}],
-            "failures": []}
-    text = run_all.render(results)
-    assert title in text
-    assert "| method | 360° (as recorded) | 180° | 90° | 60° |" in text
-    assert "| **o3d_terrain** (`segment_terrain`) | 90.0 | 85.0 | 80.0 | 70.0 |" in text
+    _check_as_recorded(run_all, tmp_path, monkeypatch, "kitti-fov:360", "kitti-fov:45",
+                       "unknown field of view '45'")
 
 
 def test_kitti_low_moves_points_down_and_leaves_them_unscored(tmp_path, monkeypatch):
@@ -616,44 +602,33 @@ def test_kitti_low_moves_points_down_and_leaves_them_unscored(tmp_path, monkeypa
     assert np.array_equal(run_all.low_frame(frame, 0.01).positions,
                           run_all.low_frame(frame, 0.01).positions)  # seeded
 
-    _fake_kitti(tmp_path / "kitti_seq00_lidar", frames=2, points=16)
-    monkeypatch.setenv("O3D_TERRAIN_DATA", str(tmp_path))
-    recorded, _ = run_all.load_frames("kitti")
-    as_recorded, failures = run_all.load_frames("kitti-low:0")
-    assert not failures and all(np.array_equal(a.positions, b.positions)
-                                for a, b in zip(recorded, as_recorded))
-    with pytest.raises(ValueError, match="unknown share of low returns '5'"):
-        run_all.load_frames("kitti-low:5")
+    _check_as_recorded(run_all, tmp_path, monkeypatch, "kitti-low:0", "kitti-low:5",
+                       "unknown share of low returns '5'")
 
 
-def test_kitti_low_section_renders_only_when_run():
+@pytest.mark.parametrize("prefix, title, header, f1s, row", [
+    ("kitti-lines", "SemanticKITTI frames seen by a sparser lidar",
+     "| method | 64 lines (as recorded) | 32 lines | 16 lines |",
+     {"64": 0.9, "32": 0.8, "16": 0.7}, "90.0 | 80.0 | 70.0"),
+    ("kitti-fov", "SemanticKITTI frames cropped to a forward field of view",
+     "| method | 360° (as recorded) | 180° | 90° | 60° |",
+     {"360": 0.9, "180": 0.85, "90": 0.8, "60": 0.7}, "90.0 | 85.0 | 80.0 | 70.0"),
+    ("kitti-low", "SemanticKITTI frames with returns from below the ground",
+     "| method | 0 % (as recorded) | 0.5 % | 1 % | 2 % |",
+     {"0": 0.98, "0.5": 0.97, "1": 0.96, "2": 0.9}, "98.0 | 97.0 | 96.0 | 90.0"),
+], ids=["lines", "fov", "low"])
+def test_kitti_variant_sections_render_only_when_run(prefix, title, header, f1s, row):
     run_all = _run_all()
     results = _no_results()
-    title = "### SemanticKITTI frames with returns from below the ground"
-    assert title not in run_all.render(results)
-    for share, f1 in (("0", 0.98), ("0.5", 0.97), ("1", 0.96), ("2", 0.9)):
-        results["segment"][f"kitti-low:{share}/o3d_terrain"] = {
+    assert f"### {title}" not in run_all.render(results)
+    for variant, f1 in f1s.items():
+        results["segment"][f"{prefix}:{variant}/o3d_terrain"] = {
             "frames": [{"name": "000000", "points": 10, "seconds": 0.01, "f1": f1}],
             "failures": []}
     text = run_all.render(results)
-    assert title in text
-    assert "| method | 0 % (as recorded) | 0.5 % | 1 % | 2 % |" in text
-    assert "| **o3d_terrain** (`segment_terrain`) | 98.0 | 97.0 | 96.0 | 90.0 |" in text
-
-
-def test_kitti_lines_section_renders_only_when_run():
-    run_all = _run_all()
-    results = _no_results()
-    title = "### SemanticKITTI frames seen by a sparser lidar"
-    assert title not in run_all.render(results)
-    for lines, f1 in (("64", 0.9), ("32", 0.8), ("16", 0.7)):
-        results["segment"][f"kitti-lines:{lines}/o3d_terrain"] = {
-            "frames": [{"name": "000000", "points": 10, "seconds": 0.01, "f1": f1}],
-            "failures": []}
-    text = run_all.render(results)
-    assert title in text
-    assert "| method | 64 lines (as recorded) | 32 lines | 16 lines |" in text
-    assert "| **o3d_terrain** (`segment_terrain`) | 90.0 | 80.0 | 70.0 |" in text
+    assert f"### {title}" in text
+    assert header in text
+    assert f"| **o3d_terrain** (`segment_terrain`) | {row} |" in text
 
 
 def test_kitti_tilt_section_renders_only_when_run():
