@@ -73,8 +73,10 @@ ADAPTIVE_KNOT_SHARE = 0.4
 
 #: beyond AUTO_MAX_CONTROL_POINTS (extents over ~170 m: airborne tiles), the automatic layout
 #: keeps control points at most this far apart (m), up to AUTO_LIMIT_CONTROL_POINTS per axis
+#: (6 m apart up to ~1.13 km: a 1 km survey tile keeps the spacing of a 350 m one;
+#: docs/algorithm.md, "Layout of wide tiles")
 AUTO_MAX_SPACING = 6.0
-AUTO_LIMIT_CONTROL_POINTS = 96
+AUTO_LIMIT_CONTROL_POINTS = 192
 
 #: fewest points for which eq. 1 can tell a compact cell from one holding a vertical face
 #: (with one or two points Z equals the lowest point whatever the points are)

@@ -118,7 +118,8 @@ def test_wide_tiles_keep_the_control_spacing_bounded():
     assert default_control_points(flat_grid(320)) == (32, 32)  # 160 m: a vehicle lidar frame
     n = default_control_points(flat_grid(800))  # 400 m: an airborne tile
     assert n[0] == n[1] > 32 and 400.0 / (n[0] - 3) <= AUTO_MAX_SPACING
-    assert default_control_points(flat_grid(4000)) == (96, 96)  # 2 km: the hard limit
+    assert default_control_points(flat_grid(2000)) == (170, 170)  # 1 km: still 6 m apart
+    assert default_control_points(flat_grid(4000)) == (192, 192)  # 2 km: the hard limit
 
 
 def test_statistics_of_the_grid_pass_give_the_same_samples(rng):
