@@ -15,6 +15,9 @@ extension                 what is read
                           (needs the ``las`` extra: ``pip install 'o3d_terrain[las]'``)
 ========================  =====================================================================
 
+:func:`write_las` writes a LAS/LAZ file with ASPRS classes: a copy of the file the cloud was
+read from (:class:`LasSource`) with the classification replaced, or a new file.
+
 Units: every metric option of the library (cell sizes, thresholds, widths) is in metres, so
 ``read_cloud`` converts LAS/LAZ coordinates to metres by default (``units="metres"``), using
 the linear units the file declares (:func:`las_units`: GeoTIFF ProjLinearUnitsGeoKey and
@@ -271,6 +274,116 @@ def write_cloud(path: str | os.PathLike, cloud: Any) -> Path:
         out.point[name] = values
     if not o3d.t.io.write_point_cloud(str(path), out):
         raise InputError(f"{path}: Open3D could not write the cloud (check the folder is writable)")
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# LAS/LAZ with classes
+
+
+#: the point cloud file extensions :func:`write_las` writes
+LAS_EXTENSIONS = (".las", ".laz")
+#: classification value of :func:`write_las` that keeps the class the source file gives the
+#: point (0, "created, never classified", in a new file)
+KEEP_CLASS = -1
+#: the extra dimension of :func:`write_las` for the height above the terrain (PDAL's name)
+HEIGHT_ABOVE_GROUND = "HeightAboveGround"
+
+
+@dataclass(frozen=True)
+class LasSource:
+    """The LAS/LAZ file a cloud was read from (product ``las_source`` of ``ReadCloud``), so a
+    writer can copy its header, coordinate system and point records: ``units`` as read
+    (:data:`UNITS`), ``points`` the number of point records."""
+
+    path: Path
+    units: str
+    points: int
+
+
+def write_las(path: str | os.PathLike, classification, *, source: LasSource | None = None,
+              positions=None, heights_above_ground=None, intensities=None,
+              colors=None) -> Path:
+    """Write a LAS/LAZ file (``.las``, or ``.laz`` compressed) with one ASPRS class per point.
+
+    ``classification``: (N,) integers 0-255, :data:`KEEP_CLASS` for the source file's class.
+    With ``source`` (a :class:`LasSource` of N points) the file is a copy of the source, its
+    header, coordinate system and every point dimension kept, with the classification
+    replaced; ``positions`` are not written (the source's coordinates stay as they are).
+    Without, a new LAS 1.4 file of ``positions`` ((N, 3), metres, written to the millimetre;
+    point format 6, or 7 with ``colors`` in [0, 1]), with ``intensities`` when given (scaled
+    to 16 bits when all lie in [0, 1]). ``heights_above_ground`` (N,) metres, NaN where
+    undefined, are stored as the float32 extra dimension :data:`HEIGHT_ABOVE_GROUND`, in the
+    file's vertical units. Needs the ``las`` extra; raises :class:`InputError` with the fix
+    when something does not fit.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in LAS_EXTENSIONS:
+        raise InputError(f"{path}: a LAS file name must end in .las or .laz")
+    try:
+        import laspy
+    except ImportError:  # pragma: no cover - the extra is installed in the tests
+        raise InputError(f"{path}: writing LAS/LAZ needs laspy; install the extra: "
+                         "pip install 'o3d_terrain[las]'") from None
+    classes = np.asarray(classification)
+    if classes.ndim != 1 or not np.issubdtype(classes.dtype, np.integer):
+        raise InputError(f"{path}: classification must be a 1-D integer array, got "
+                         f"{classes.dtype} of shape {classes.shape}")
+    if classes.size and (classes.min() < KEEP_CLASS or classes.max() > 255):
+        raise InputError(f"{path}: ASPRS classes are 0-255 (or {KEEP_CLASS}: keep the source's)")
+    n = classes.size
+    if source is not None:
+        las = open_las(source.path)
+        if len(las.points) != n or source.points != n:
+            raise InputError(
+                f"{path}: {n} classes for the {len(las.points)} points of {source.path}; a stage "
+                "added or dropped points, so they no longer match the file's records (write "
+                "the cloud itself with WriteCloud)")
+        vertical = 1.0 if source.units == "file" else las_units(las).vertical
+        old = np.asarray(las.classification, dtype=np.int64)
+    else:
+        p = np.asarray(positions, dtype=np.float64) if positions is not None else None
+        if p is None or p.ndim != 2 or p.shape != (n, 3):
+            raise InputError(f"{path}: a new LAS file needs (N, 3) positions for its {n} "
+                             "classes")
+        finite = np.isfinite(p).all(axis=1)
+        if not finite.all():
+            raise InputError(f"{path}: {int((~finite).sum())} points have non-finite "
+                             "coordinates, which LAS cannot store")
+        header = laspy.LasHeader(point_format=7 if colors is not None else 6, version="1.4")
+        header.scales = np.array([0.001, 0.001, 0.001])
+        header.offsets = np.floor(p.min(axis=0)) if n else np.zeros(3)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = p[:, 0], p[:, 1], p[:, 2]
+        if intensities is not None:
+            values = np.asarray(intensities, dtype=np.float64).reshape(n)
+            values = np.nan_to_num(values)
+            if values.size and values.min() >= 0.0 and values.max() <= 1.0:
+                values = values * 65535.0
+            las.intensity = np.clip(np.round(values), 0, 65535).astype(np.uint16)
+        if colors is not None:
+            rgb = np.clip(np.asarray(colors, dtype=np.float64).reshape(n, 3), 0.0, 1.0)
+            rgb = np.round(rgb * 65535.0).astype(np.uint16)
+            las.red, las.green, las.blue = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+        vertical = 1.0
+        old = np.zeros(n, np.int64)
+    new = np.where(classes == KEEP_CLASS, old, classes)
+    if las.point_format.id < 6 and new.size and new.max() > 31:
+        raise InputError(f"{path}: point format {las.point_format.id} of {source.path} stores "
+                         "classes 0-31 only; choose classes below 32")
+    las.classification = new.astype(np.uint8)
+    if heights_above_ground is not None:
+        heights = np.asarray(heights_above_ground, dtype=np.float64).reshape(n) / vertical
+        if HEIGHT_ABOVE_GROUND not in las.point_format.extra_dimension_names:
+            las.add_extra_dim(laspy.ExtraBytesParams(
+                name=HEIGHT_ABOVE_GROUND, type=np.float32,
+                description="height above the terrain"))
+        las[HEIGHT_ABOVE_GROUND] = heights.astype(np.float32)
+    output_path(path)
+    try:
+        las.write(str(path))
+    except Exception as exc:  # laspy raises many types (no LAZ backend, a full disk)
+        raise InputError(f"{path}: could not write the LAS file ({exc})") from exc
     return path
 
 

@@ -14,9 +14,10 @@ import numpy as np
 from . import io
 from ._files import output_path
 from .errors import InputError
-from .frame import Frame
+from .frame import HEIGHTS_ABOVE_TERRAIN, LABELS, Frame
 from .grid import HeightGrid
-from .options import Component, component, option
+from .options import Component, Range, component, option
+from .segment import TerrainLabel
 
 #: every registered writer by class name (the YAML ``type:`` under ``outputs:``)
 WRITERS: dict[str, type["Writer"]] = {}
@@ -88,6 +89,10 @@ class WriteCloud(Writer):
 
     def check_options(self) -> list[str]:
         suffix = Path(self.path).suffix.lower()
+        if suffix in io.LAS_EXTENSIONS:
+            return [f"The 'path' option of WriteCloud names a LAS file ({self.path!r}); "
+                    "write LAS/LAZ with the writer WriteLas (type: WriteLas), which sets "
+                    "the points' ASPRS classes."]
         if suffix not in io.WRITE_EXTENSIONS:
             return [f"The 'path' option of WriteCloud must end in one of "
                     f"{', '.join(io.WRITE_EXTENSIONS)}. Got {self.path!r}."]
@@ -97,6 +102,72 @@ class WriteCloud(Writer):
         if self.color_by:
             frame = frame.with_attributes(colors=_colors_for(frame, self.color_by, self.colormap))
         return [io.write_cloud(self._target(out_dir, self.path), frame)]
+
+
+_CLASS = Range(0, 255)
+
+
+@writer
+class WriteLas(Writer):
+    """Write the cloud as LAS/LAZ with ASPRS classes from the Segmenter's labels."""
+
+    path: str = option("classified.laz", kind="path",
+                       help="file name (.las, or .laz compressed)")
+    ground_class: int = option(2, rule=_CLASS, help="class of the terrain points (ASPRS 2, "
+                               "ground)")
+    obstacle_class: int = option(
+        1, kind=int, rule=_CLASS, nullable=True,
+        help="class of the obstacle points (ASPRS 1, unclassified); null keeps the class "
+             "the file gives them, except that a point the file called ground_class gets 1")
+    below_class: int = option(
+        7, kind=int, rule=_CLASS, nullable=True,
+        help="class of the points below the terrain (ASPRS 7, low noise); null keeps the "
+             "file's, as for obstacle_class")
+    height_above_ground: bool = option(
+        True, help="add the extra dimension HeightAboveGround (float32, the file's vertical "
+                   "units, NaN where the surface is undefined)")
+
+    def check_options(self) -> list[str]:
+        if Path(self.path).suffix.lower() not in io.LAS_EXTENSIONS:
+            return [f"The 'path' option of WriteLas must end in .las or .laz. Got {self.path!r}."]
+        return []
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:
+        """A copy of the LAS/LAZ file ReadCloud read (product ``las_source``: header,
+        coordinate system and every point record kept) with the classification replaced,
+        or a new LAS 1.4 file of the frame's points (metres) when the cloud came from
+        elsewhere. Points the Segmenter could not label (non-finite, outside the surface)
+        keep the file's class (0 in a new file)."""
+        if not frame.has_attribute(LABELS):
+            raise InputError("WriteLas needs the per-point labels of a Segmenter; add "
+                             "'- type: Segmenter' to the stages")
+        labels = np.asarray(frame.attribute(LABELS), dtype=np.int64)
+        source = frame.products.get("las_source")
+        old = None  # the classes as read, for the classes kept
+        if (self.obstacle_class is None or self.below_class is None) \
+                and frame.has_attribute("classification"):
+            old = np.asarray(frame.attribute("classification"), dtype=np.int64)
+        classes = np.full(len(frame), io.KEEP_CLASS, np.int64)
+        classes[labels == TerrainLabel.TERRAIN] = self.ground_class
+        for label, value in ((TerrainLabel.OBSTACLE, self.obstacle_class),
+                             (TerrainLabel.BELOW_TERRAIN, self.below_class)):
+            mine = labels == label
+            if value is not None:
+                classes[mine] = value
+            elif old is not None:
+                # the file's class stays, but not a ground class the Segmenter denies
+                classes[mine & (old == self.ground_class)] = 1
+        heights = None
+        if self.height_above_ground and frame.has_attribute(HEIGHTS_ABOVE_TERRAIN):
+            heights = frame.attribute(HEIGHTS_ABOVE_TERRAIN)
+        target = self._target(out_dir, self.path)
+        if source is not None:
+            return [io.write_las(target, classes, source=source, heights_above_ground=heights)]
+        return [io.write_las(
+            target, classes, positions=frame.positions, heights_above_ground=heights,
+            intensities=frame.attribute("intensities") if frame.has_attribute("intensities")
+            else None,
+            colors=frame.attribute("colors") if frame.has_attribute("colors") else None)]
 
 
 def image_layers(product: Any) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:

@@ -2,20 +2,22 @@
 
 from pathlib import Path
 
-from o3d_terrain.io import read_cloud
-from o3d_terrain.stages import GridQuantize, RationalBSplineTerrain, Segmenter, SlopeEstimator
-from o3d_terrain.writers import WriteAttribute, WriteCloud, WriteImage, WriteProduct
+from o3d_terrain.stages import (GridQuantize, RationalBSplineTerrain, ReadCloud, Segmenter,
+                                SlopeEstimator)
+from o3d_terrain.writers import WriteAttribute, WriteCloud, WriteImage, WriteLas, WriteProduct
 
 
 def run(output_dir, input_path=None):
     if input_path is None:
         raise ValueError("las_terrain needs a LAS/LAZ tile: run(output_dir, input_path=tile)")
-    frame = GridQuantize(cell_size=1.0)(read_cloud(input_path))
+    # ReadCloud, not read_cloud: the frame keeps the file (product las_source) for WriteLas
+    frame = GridQuantize(cell_size=1.0)(ReadCloud(path=str(input_path))())
     frame = RationalBSplineTerrain()(frame)
     frame = SlopeEstimator(cell_size=1.0)(frame)
     frame = Segmenter()(frame)  # automatic threshold and local planes
     out = Path(output_dir)
     for writer in (
+        WriteLas(path="classified.laz"),  # ground 2, obstacles 1, below 7, HeightAboveGround
         WriteCloud(path="labelled.ply", color_by="labels"),
         WriteAttribute(attribute="labels", path="labels.npy"),
         WriteImage(product="surface", path="terrain_height.png"),

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ..frame import Frame
-from ..io import CLOUD_EXTENSIONS, UNITS, read_cloud
+from ..io import CLOUD_EXTENSIONS, LAS_EXTENSIONS, UNITS, LasSource, read_cloud
 from ..options import option
 from .base import SourceStage, stage
 
@@ -16,7 +18,12 @@ def _check_extension(path: str) -> str | None:
 
 @stage
 class ReadCloud(SourceStage):
-    """Read a point cloud file: PLY, PCD, XYZ/TXT/CSV, NPY, KITTI .bin, LAS/LAZ."""
+    """Read a point cloud file: PLY, PCD, XYZ/TXT/CSV, NPY, KITTI .bin, LAS/LAZ.
+
+    A LAS/LAZ file also gives the frame the product ``las_source``
+    (:class:`o3d_terrain.io.LasSource`), from which ``WriteLas`` copies the file's header,
+    coordinate system and point records.
+    """
 
     path_options = ("path",)
     writes = ()
@@ -29,5 +36,9 @@ class ReadCloud(SourceStage):
                              "metres; 'file' keeps the file's coordinates")
 
     def read(self) -> Frame:
-        return Frame(read_cloud(self.path, units=self.units)).with_note(
+        frame = Frame(read_cloud(self.path, units=self.units)).with_note(
             f"{self.type_name}: read {self.path}")
+        if Path(self.path).suffix.lower() in LAS_EXTENSIONS:
+            frame = frame.with_products(
+                las_source=LasSource(Path(self.path), self.units, len(frame)))
+        return frame
