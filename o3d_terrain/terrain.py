@@ -837,12 +837,16 @@ def _fit_robust(z, base, measured, xl, yl, region_local, n_max, degree, rational
             moved, change = _tk.robust_pass(
                 z, s, base_cells, on, compact, use_prior, prior_spread, noise,
                 no_sigma if cell_sigma is None else cell_sigma, cell_sigma is not None,
-                above_k, below_k, clip_k, p, previous_w, k > 0, w_next, ratios, p_next,
+                above_k, below_k, clip_k, p, previous_w, True, w_next, ratios, p_next,
                 equalized)
             have_ratios = True
             w, p = w_next, p_next
             records.append(IterationRecord(n, mean_error, th_above, moved))
-            converged = k > 0 and change < 0.02
+            # the weights this surface gives against those it was solved with (at a new
+            # layout's first pass, the last layout's): within 0.02, the solve is the fixed
+            # point of its weights, whichever pass it is (docs/algorithm.md, "The loop's
+            # last solve")
+            converged = change < 0.02
             if converged:
                 break
             previous_w = w
