@@ -301,15 +301,23 @@ class LasSource:
     points: int
 
 
-def write_las(path: str | os.PathLike, classification, *, source: LasSource | None = None,
-              positions=None, heights_above_ground=None, intensities=None,
-              colors=None) -> Path:
+def write_las(path: str | os.PathLike, classification, *,
+              source: LasSource | str | os.PathLike | None = None, positions=None,
+              heights_above_ground=None, intensities=None, colors=None) -> Path:
     """Write a LAS/LAZ file (``.las``, or ``.laz`` compressed) with one ASPRS class per point.
 
     ``classification``: (N,) integers 0-255, :data:`KEEP_CLASS` for the source file's class.
-    With ``source`` (a :class:`LasSource` of N points) the file is a copy of the source, its
-    header, coordinate system and every point dimension kept, with the classification
-    replaced; ``positions`` are not written (the source's coordinates stay as they are).
+    With ``source`` (a :class:`LasSource`, or the path of a LAS/LAZ file read with
+    ``read_cloud``'s default units) the file is a copy of the source, its header, coordinate
+    system and every point dimension kept, with the classification replaced; ``positions``
+    are not written (the source's coordinates stay as they are)::
+
+        cloud = o3d_terrain.read_cloud("tile.laz")
+        surface, inliers = o3d_terrain.segment_terrain(cloud)
+        classes = np.full(len(cloud.point.positions), 1)
+        classes[inliers] = 2
+        write_las("tile_ground.laz", classes, source="tile.laz")
+
     Without, a new LAS 1.4 file of ``positions`` ((N, 3), metres, written to the millimetre;
     point format 6, or 7 with ``colors`` in [0, 1]), with ``intensities`` when given (scaled
     to 16 bits when all lie in [0, 1]). ``heights_above_ground`` (N,) metres, NaN where
@@ -332,6 +340,8 @@ def write_las(path: str | os.PathLike, classification, *, source: LasSource | No
     if classes.size and (classes.min() < KEEP_CLASS or classes.max() > 255):
         raise InputError(f"{path}: ASPRS classes are 0-255 (or {KEEP_CLASS}: keep the source's)")
     n = classes.size
+    if isinstance(source, (str, os.PathLike)):
+        source = LasSource(Path(source), "metres", n)
     if source is not None:
         las = open_las(source.path)
         if len(las.points) != n or source.points != n:

@@ -110,6 +110,23 @@ def test_null_classes_keep_the_files_own_but_never_its_ground(tmp_path):
     assert "HeightAboveGround" not in out.point_format.extra_dimension_names
 
 
+def test_the_python_example_of_write_las(tmp_path):
+    import o3d_terrain
+
+    roof = _tile(tmp_path / "tile.laz", feet=True)
+    cloud = o3d_terrain.read_cloud(tmp_path / "tile.laz")
+    surface, inliers = o3d_terrain.segment_terrain(cloud)
+    classes = np.full(len(cloud.point.positions), 1)
+    classes[inliers] = 2
+    heights = surface.heights_above(cloud.point.positions.numpy())
+    write_las(tmp_path / "ground.laz", classes, source=tmp_path / "tile.laz",
+              heights_above_ground=heights)
+    out = laspy.read(str(tmp_path / "ground.laz"))
+    assert (np.asarray(out.classification)[roof] == 1).mean() > 0.99
+    assert np.median(np.asarray(out["HeightAboveGround"])[roof]) * 0.3048 == \
+        pytest.approx(3.0, abs=0.1)  # metres in, feet in the feet tile
+
+
 def test_a_cloud_not_read_from_a_las_file_gets_a_new_one(tmp_path, rng):
     pts = np.c_[rng.uniform(0, 30, 6000), rng.uniform(0, 30, 6000), rng.normal(0, 0.02, 6000)]
     pts[:300, 2] += 2.0
@@ -142,6 +159,9 @@ def test_write_las_rejects_what_does_not_fit(tmp_path):
     with pytest.raises(InputError, match="non-finite"):
         write_las(tmp_path / "a.las", np.full(2, 2),
                   positions=np.array([[0, 0, 0], [np.nan, 0, 0]]))
+    # a path for the source: the points must still match
+    with pytest.raises(InputError, match="added or dropped points"):
+        write_las(tmp_path / "a.las", np.full(n + 1, 2), source=str(tmp_path / "tile.las"))
     # KEEP_CLASS keeps the file's classes; nothing else changes
     write_las(tmp_path / "kept.las", np.full(n, KEEP_CLASS), source=source)
     np.testing.assert_array_equal(laspy.read(str(tmp_path / "kept.las")).classification,
