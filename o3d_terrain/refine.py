@@ -45,9 +45,10 @@ from .spline import GridBasis, TerrainSurface, clamped_knots
 from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
-__all__ = ["refine_surface", "refit_layout", "steep_share", "REFINE_MIN_CELLS",
+__all__ = ["refine_surface", "refit_layout", "refit_cap", "steep_share", "REFINE_MIN_CELLS",
            "REFINE_MAX_CONTROL_POINTS", "REFINE_REPEAT_MOVE", "REFINE_REPEATS",
-           "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE", "STEEP_SLOPE_DEG"]
+           "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE", "STEEP_SLOPE_DEG",
+           "REFINE_CAP_POINTS", "REFINE_LIMIT_CONTROL_POINTS"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points:
 #: fewer and the robust surface is kept (the penalty alone would shape the refit)
@@ -63,6 +64,14 @@ REFINE_MAX_CONTROL_POINTS = 40
 #: steep relief") and the prior's automatic slope limit is
 #: :data:`o3d_terrain.terrain.STEEP_MAX_SLOPE_DEG` (the stage RationalBSplineTerrain decides)
 STEEP_REFINE_MAX_CONTROL_POINTS = 64
+#: ... for up to REFINE_CAP_POINTS terrain points; a denser scan (a terrestrial laser
+#: scanner's, a map of many frames) lets those caps grow with the fourth root of its terrain
+#: points, up to REFINE_LIMIT_CONTROL_POINTS: the banded solve costs about the fourth power
+#: of the control points per axis, the rest of the fit about the points, so the solve keeps
+#: the share of the time it has on a frame of REFINE_CAP_POINTS (docs/algorithm.md, "Dense
+#: scans: the refit's layout grows with the points")
+REFINE_CAP_POINTS = 100_000
+REFINE_LIMIT_CONTROL_POINTS = 128
 STEEP_SLOPE_DEG = 15.0
 STEEP_SHARE = 0.2
 #: the steep share is measured on at most this many of those cells (evenly picked), and so
@@ -96,8 +105,8 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     cloud's coordinates, for the labelling (its range term and its level); cell_plane: False =
     eq. 1 about the cells' means, not their planes (as the fit's option); max_control_points:
     None = the surface's layout and knots (a layout the caller chose), a number = the
-    automatic layout up to that many per axis (:func:`refit_layout`; a repeat keeps the
-    first refit's layout and knots)."""
+    automatic layout up to that many per axis, more on a dense scan (:func:`refit_cap`,
+    :func:`refit_layout`; a repeat keeps the first refit's layout and knots)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     refits, cells = 0, 0
     for _ in range(1 + max(0, int(repeats))):
@@ -148,7 +157,8 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
     local = (region[0] - x0, region[1] - x0, region[2] - y0, region[3] - y0)
     layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
     if max_control_points is not None:
-        layout, knots = refit_layout(surface, grid, max_control_points, local)
+        most = refit_cap(max_control_points, len(terrain))
+        layout, knots = refit_layout(surface, grid, most, local)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
                       knots)
     with one_blas_thread():  # a small banded solve: BLAS threads cost more than they give
@@ -191,6 +201,17 @@ def steep_share(surface: TerrainSurface, grid: HeightGrid,
     median = np.median(normals, axis=0)
     median /= np.linalg.norm(median)
     return float(np.mean(normals @ median < np.cos(np.radians(slope_deg))))
+
+
+def refit_cap(most: int, terrain_points: int) -> int:
+    """The refit's most control points per axis for a cap ``most`` and ``terrain_points``
+    terrain points: ``most`` up to :data:`REFINE_CAP_POINTS` of them, then ``most`` times the
+    fourth root of their ratio to it, at most :data:`REFINE_LIMIT_CONTROL_POINTS` (never
+    below ``most``)."""
+    if terrain_points <= REFINE_CAP_POINTS:
+        return int(most)
+    grown = int(round(most * (terrain_points / REFINE_CAP_POINTS) ** 0.25))
+    return max(int(most), min(grown, REFINE_LIMIT_CONTROL_POINTS))
 
 
 def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,

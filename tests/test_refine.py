@@ -11,10 +11,13 @@ import o3d_terrain
 from o3d_terrain.errors import InputError
 from o3d_terrain.grid import quantize_points
 from o3d_terrain.refine import (
+    REFINE_CAP_POINTS,
+    REFINE_LIMIT_CONTROL_POINTS,
     REFINE_MAX_CONTROL_POINTS,
     REFINE_REPEAT_MOVE,
     STEEP_REFINE_MAX_CONTROL_POINTS,
     refine_surface,
+    refit_cap,
     steep_share,
 )
 from o3d_terrain.stages import RationalBSplineTerrain
@@ -148,6 +151,35 @@ def test_an_automatic_layout_grows_for_the_refit_where_the_robust_one_is_capped(
     # a layout the caller chose is the refit's too
     chosen = RationalBSplineTerrain(control_points=(30, 30)).fit(grid, p)
     assert chosen.surface.control_points.shape == (30, 30)
+
+
+def test_the_refit_cap_grows_with_the_fourth_root_of_the_terrain_points():
+    assert refit_cap(40, 60_000) == 40 and refit_cap(40, REFINE_CAP_POINTS) == 40
+    assert refit_cap(40, 16 * REFINE_CAP_POINTS) == 80  # 16x the points: 2x per axis
+    assert refit_cap(64, 5 * REFINE_CAP_POINTS) == round(64 * 5 ** 0.25)
+    assert refit_cap(64, 10 ** 9) == REFINE_LIMIT_CONTROL_POINTS
+    assert refit_cap(200, 10 ** 9) == 200  # never below the cap it is given
+
+
+def test_a_dense_scan_gets_a_finer_refit_that_follows_more_relief(rng, monkeypatch):
+    # 16x the points of _detailed_scan over the same 80 m: a terrestrial scanner's density
+    p, terrain = _detailed_scan(rng, n=1_900_000)
+    assert len(p) > 2 * REFINE_CAP_POINTS
+    gx, gy = np.meshgrid(np.linspace(-25, 25, 101), np.linspace(-25, 25, 101))
+
+    def rmse(surface):
+        return float(np.sqrt(np.mean((surface(gx, gy) - terrain(gx, gy)) ** 2)))
+
+    dense, _ = o3d_terrain.segment_terrain(p)
+    most = refit_cap(REFINE_MAX_CONTROL_POINTS, len(p))
+    monkeypatch.setattr("o3d_terrain.refine.REFINE_CAP_POINTS", 10 ** 9)  # the caps held
+    held, _ = o3d_terrain.segment_terrain(p)
+    assert held.control_points.shape == (REFINE_MAX_CONTROL_POINTS,) * 2
+    # 358k points, most of them terrain: 55 x 55
+    assert dense.control_points.shape[0] > REFINE_MAX_CONTROL_POINTS
+    assert dense.control_points.shape[0] <= most
+    # measured: 0.122 m with the caps held, 0.047 m with the grown layout
+    assert rmse(dense) < 0.6 * rmse(held)
 
 
 def _scan_of(terrain, rng, n=60_000, radius=45.0):
