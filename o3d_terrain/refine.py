@@ -45,13 +45,17 @@ from .spline import GridBasis, TerrainSurface, clamped_knots
 from .terrain import default_control_points, knot_densities
 from .threads import one_blas_thread
 
-__all__ = ["refine_surface", "refit_layout", "refit_cap", "steep_share", "REFINE_MIN_CELLS",
+__all__ = ["refine_surface", "refit_layout", "refit_cap", "steep_share",
+           "supported_control_points", "REFINE_MIN_CELLS",
            "REFINE_MAX_CONTROL_POINTS", "REFINE_REPEAT_MOVE", "REFINE_REPEATS",
            "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE", "STEEP_SLOPE_DEG",
            "REFINE_CAP_POINTS", "REFINE_LIMIT_CONTROL_POINTS"]
 
-#: fewest grid cells with terrain points for a refit, in multiples of the control points:
-#: fewer and the robust surface is kept (the penalty alone would shape the refit)
+#: fewest grid cells with terrain points for a refit, in multiples of the control points
+#: (on a vehicle's scan, of the control points whose support holds terrain points: a forward
+#: field of view, a sparse scanner's rings leave most of the region's box unseen, and labels
+#: are only wanted where the points are): fewer and the robust surface is kept (the penalty
+#: alone would shape the refit; docs/algorithm.md, "Refit on the terrain points")
 REFINE_MIN_CELLS = 1.0
 #: most control points per axis of the refit's automatic layout: its one banded solve takes
 #: 4.3 ms at 40 x 40 on a KITTI frame against 2.2 ms at 32 x 32 (docs/algorithm.md, "A finer
@@ -87,7 +91,8 @@ REFINE_REPEATS = 2
 def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size: float,
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
                    cell_plane: bool = True, max_control_points: int | None = None,
-                   repeats: int = REFINE_REPEATS) -> tuple[TerrainSurface, int, int]:
+                   repeats: int = REFINE_REPEATS, vehicle: bool = False
+                   ) -> tuple[TerrainSurface, int, int]:
     """``(surface, cells, refits)``: the surface's layout refitted to the points ``positions``
     that the automatic labelling against ``surface`` calls terrain (module docstring), the
     number of grid cells that held terrain points in the last refit made, and how many refits
@@ -106,12 +111,14 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     eq. 1 about the cells' means, not their planes (as the fit's option); max_control_points:
     None = the surface's layout and knots (a layout the caller chose), a number = the
     automatic layout up to that many per axis, more on a dense scan (:func:`refit_cap`,
-    :func:`refit_layout`; a repeat keeps the first refit's layout and knots)."""
+    :func:`refit_layout`; a repeat keeps the first refit's layout and knots); vehicle: the
+    points are a vehicle's scan, whose terrain cells :data:`REFINE_MIN_CELLS` weighs against
+    the control points under its terrain points only (:func:`supported_control_points`)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     refits, cells = 0, 0
     for _ in range(1 + max(0, int(repeats))):
         refined, got, move = _refit(surface, p, cell_size, smoothing, noise_floor,
-                                    sensor_origin, cell_plane, max_control_points)
+                                    sensor_origin, cell_plane, max_control_points, vehicle)
         if refined is surface:  # too few terrain cells: the surface so far stays
             cells = cells if refits else got
             break
@@ -123,7 +130,8 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
 
 def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: float,
            noise_floor: float, sensor_origin, cell_plane: bool,
-           max_control_points: int | None) -> tuple[TerrainSurface, int, float]:
+           max_control_points: int | None, vehicle: bool = False
+           ) -> tuple[TerrainSurface, int, float]:
     """One refit of :func:`refine_surface`: ``(refined, cells, move)``, move the median of
     |refined - surface| (m) over at most :data:`STEEP_SAMPLE` of the refit's terrain cells
     (evenly picked); ``(surface, cells, 0.0)`` when too few cells held terrain points."""
@@ -143,7 +151,8 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
                            plane=cell_plane, tilt_spread=noise_floor)
     measured = grid.state == MEASURED
     cells = np.flatnonzero(measured.ravel())
-    if cells.size < REFINE_MIN_CELLS * n0 * n1:
+    under = supported_control_points(surface, terrain) if vehicle else n0 * n1
+    if cells.size < REFINE_MIN_CELLS * under:
         return surface, int(cells.size), 0.0
     # eq. 1 about the cell's plane (about the mean where the plane is not significant: the
     # grid's level and plane_sample are then the mean and eq. 1's sample), at least the
@@ -201,6 +210,25 @@ def steep_share(surface: TerrainSurface, grid: HeightGrid,
     median = np.median(normals, axis=0)
     median /= np.linalg.norm(median)
     return float(np.mean(normals @ median < np.cos(np.radians(slope_deg))))
+
+
+def supported_control_points(surface: TerrainSurface, points: np.ndarray) -> int:
+    """How many of ``surface``'s control points have one of ``points`` ((N, >= 2) world x, y)
+    under their support (the (degree + 1)^2 control points of the knot span each lies in)."""
+    x0, y0, _ = surface.origin
+    degree = surface.degree
+    n0, n1 = surface.control_points.shape
+    span_x = np.searchsorted(surface.knots_x, points[:, 0] - x0, side="right") - 1
+    span_y = np.searchsorted(surface.knots_y, points[:, 1] - y0, side="right") - 1
+    span_x = np.clip(span_x, degree, n0 - 1)
+    span_y = np.clip(span_y, degree, n1 - 1)
+    spans = np.zeros((n0, n1), bool)
+    spans[span_x, span_y] = True  # the spans holding a point, by their last control point
+    under = np.zeros((n0, n1), bool)
+    for a in range(degree + 1):
+        for b in range(degree + 1):
+            under[:n0 - a, :n1 - b] |= spans[a:, b:]
+    return int(under.sum())
 
 
 def refit_cap(most: int, terrain_points: int) -> int:

@@ -19,6 +19,7 @@ from o3d_terrain.refine import (
     refine_surface,
     refit_cap,
     steep_share,
+    supported_control_points,
 )
 from o3d_terrain.stages import RationalBSplineTerrain
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_stereo
@@ -99,6 +100,43 @@ def test_too_few_terrain_cells_keep_the_robust_surface(rng):
                                         noise_floor=0.03)
     assert out is surface and refits == 0
     assert 0 < cells < 144
+
+
+def test_control_points_under_the_points_are_those_of_their_knot_spans(rng):
+    p = np.column_stack([rng.uniform(0, 40, 2000), rng.uniform(0, 40, 2000),
+                         rng.normal(0, 0.01, 2000)])
+    surface = o3d_terrain.fit_terrain(p, refine=False, control_points=(12, 12))
+    assert supported_control_points(surface, p) == 144
+    # points in one knot span: its (degree + 1)^2 control points
+    x0, y0, _ = surface.origin
+    inside = np.column_stack([np.full(5, x0 + 0.5 * (surface.knots_x[5] + surface.knots_x[6])),
+                              np.full(5, y0 + 0.5 * (surface.knots_y[7] + surface.knots_y[8]))])
+    assert supported_control_points(surface, inside) == 16
+    # the first span and its neighbour along x: 4 x 4 and one more row of 4
+    first_x, first_y = x0 + surface.knots_x[3] + 0.1, y0 + surface.knots_y[3] + 0.1
+    corner = np.array([[first_x, first_y],
+                       [x0 + 0.5 * (surface.knots_x[4] + surface.knots_x[5]), first_y]])
+    assert supported_control_points(surface, corner) == 20
+
+
+def test_a_forward_field_of_view_keeps_its_refit(rng):
+    # a vehicle's 60 degree forward scan: its wedge leaves most of the region's box unseen, so
+    # fewer cells hold terrain points than the box has control points; the refit still runs,
+    # weighed against the control points under the wedge (a top-down scan keeps the old rule)
+    scene = make_scene("offroad", seed=0)
+    from o3d_terrain.synthetic import sample_lidar
+
+    cloud = sample_lidar(scene, beams=32, fov_deg=(-25.0, 3.0), azimuth_steps=1800, seed=0)
+    p = np.asarray(cloud.positions, dtype=np.float64)
+    p = p[np.abs(np.degrees(np.arctan2(p[:, 1], p[:, 0]))) <= 30.0]
+    stage = RationalBSplineTerrain()
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+    fit = stage.fit(grid, p)
+    n = fit.robust_surface.control_points.size
+    assert fit.refits >= 1
+    _, cells, refits = refine_surface(fit.robust_surface, p, cell_size=0.5,
+                                      smoothing=stage.smoothing, noise_floor=stage.noise_floor)
+    assert refits == 0 and cells < n  # what the rule over all control points decides
 
 
 def test_refit_of_a_noisy_plane_sits_within_the_noise_floor_of_it(rng):
