@@ -58,13 +58,23 @@ SENSORS = {
 }
 
 
+def raster_relief(heights: np.ndarray, row: int, col: int, half: float,
+                  scale: float = 1.0) -> GridRelief:
+    """The raster (1 m cells, rows north to south) ``half`` + 12 m around cell (row, col) as a
+    smooth terrain in metres about that cell, its ground at z = 0, its relief times
+    ``scale`` (the 12 m beyond ``half`` keep the spline's edge away from the scene)."""
+    pad = int(half) + 12
+    window = heights[row - pad:row + pad + 1, col - pad:col + pad + 1][::-1]  # rows south to north
+    if window.shape != (2 * pad + 1, 2 * pad + 1):
+        raise ValueError(f"cell ({row}, {col}) lies within {pad} m of the raster's edge")
+    return GridRelief(scale * (window - heights[row, col]), 1.0, x0=-float(pad),
+                      y0=-float(pad))
+
+
 def site_scene(heights: np.ndarray, row: int, col: int, seed: int, scale: float = 1.0) -> Scene:
     """The site centred on raster cell (row, col) (rows north to south), in metres about its
     centre, the centre's ground at z = 0, its relief times ``scale``, with its obstacles."""
-    pad = int(HALF) + 12
-    window = heights[row - pad:row + pad + 1, col - pad:col + pad + 1][::-1]  # rows south to north
-    relief = GridRelief(scale * (window - heights[row, col]), 1.0, x0=-float(pad),
-                        y0=-float(pad))
+    relief = raster_relief(heights, row, col, HALF, scale)
     rng = np.random.default_rng(seed)
     inside = (-HALF + 3, HALF - 3)
     obstacles = list(forest_obstacles(rng, inside, inside, count=38, clear_radius=5.0))

@@ -31,6 +31,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
 
@@ -38,8 +39,10 @@ import o3d_terrain  # noqa: E402
 import o3d_terrain.refine as refine_module  # noqa: E402
 from o3d_terrain.evaluation.datasets import data_root  # noqa: E402
 from o3d_terrain.evaluation.terrain import read_raster  # noqa: E402
-from o3d_terrain.synthetic import GridRelief, Scene, sample_lidar  # noqa: E402
+from o3d_terrain.synthetic import Scene, sample_lidar  # noqa: E402
 from o3d_terrain.synthetic.scene import forest_obstacles  # noqa: E402
+
+from bench_dem_sites import raster_relief  # noqa: E402  (the same raster windows)
 
 #: scanner sites (raster row, column), the raster's centre and two around it
 SITES = ((200, 200), (170, 230), (230, 170))
@@ -48,14 +51,8 @@ BANDS = ((0.0, 30.0), (30.0, 80.0), (80.0, np.inf))
 
 def site_scene(heights: np.ndarray, row: int, col: int, radius: float, seed: int) -> Scene:
     """The raster around (row, col) in metres about it (its ground at z = 0), with trees."""
-    pad = int(radius) + 12
-    rows, cols = heights.shape
-    r0, r1 = max(0, row - pad), min(rows, row + pad + 1)
-    c0, c1 = max(0, col - pad), min(cols, col + pad + 1)
-    window = heights[r0:r1, c0:c1][::-1]  # rows south to north
-    relief = GridRelief(window - heights[row, col], 1.0, x0=-float(col - c0),
-                        y0=-float(r1 - 1 - row))
-    inside = (-float(col - c0) + 3.0, float(c1 - 1 - col) - 3.0)
+    relief = raster_relief(heights, row, col, radius)
+    inside = (-float(int(radius) + 12) + 3.0, float(int(radius) + 12) - 3.0)
     trees = tuple(forest_obstacles(np.random.default_rng(seed), inside, inside, count=60,
                                    clear_radius=5.0))
     return Scene(f"dense scan {row},{col}", (relief,), trees,
@@ -78,7 +75,10 @@ def main() -> None:
         refine_module.REFINE_CAP_POINTS = args.cap_points
     heights = read_raster(root / "dem_1m" / "dem.tif").heights.astype(np.float64)
     for k, (row, col) in enumerate(SITES[:args.sites]):
-        scene = site_scene(heights, row, col, args.radius, seed=k)
+        try:
+            scene = site_scene(heights, row, col, args.radius, seed=k)
+        except ValueError as exc:
+            raise SystemExit(f"--radius {args.radius:g} is too large for the raster: {exc}")
         cloud = sample_lidar(scene, beams=240, fov_deg=(-45.0, 15.0), azimuth_steps=3600,
                              sensor_height=1.6, max_range=args.radius, on_terrain=True,
                              range_noise=0.005, seed=k)

@@ -214,7 +214,9 @@ def steep_share(surface: TerrainSurface, grid: HeightGrid,
 
 def supported_control_points(surface: TerrainSurface, points: np.ndarray) -> int:
     """How many of ``surface``'s control points have one of ``points`` ((N, >= 2) world x, y)
-    under their support (the (degree + 1)^2 control points of the knot span each lies in)."""
+    under their support (the (degree + 1)^2 control points of the knot span each lies in).
+    The spans are those of :func:`o3d_terrain._kernels.bspline.find_span` (points beyond the
+    knots in the end spans), found for all points at once by ``np.searchsorted``."""
     x0, y0, _ = surface.origin
     degree = surface.degree
     n0, n1 = surface.control_points.shape
