@@ -17,6 +17,8 @@ extension                 what is read
 
 :func:`write_las` writes a LAS/LAZ file with ASPRS classes: a copy of the file the cloud was
 read from (:class:`LasSource`) with the classification replaced, or a new file.
+:func:`write_geotiff` writes a single-band GeoTIFF raster (the terrain's DTM or slope map,
+:mod:`o3d_terrain.raster`) in such a file's coordinate system and units.
 
 Units: every metric option of the library (cell sizes, thresholds, widths) is in metres, so
 ``read_cloud`` converts LAS/LAZ coordinates to metres by default (``units="metres"``), using
@@ -29,6 +31,7 @@ file's coordinate system). Other formats carry no unit and are read as they are.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -186,27 +189,46 @@ def las_units(las) -> LasUnits:
     and VerticalUnitsGeoKey (4099) for z (x/y's unit when absent), else the last UNIT of the
     WKT coordinate system for all three. Metres with source "unknown" when the file declares
     no unit (a CRS given only by its EPSG code is not looked up)."""
+    keys = None
     for vlr in las.header.vlrs:
         if type(vlr).__name__ == "GeoKeyDirectoryVlr":
             keys = {key.id: key.value_offset for key in vlr.geo_keys}
-            code = keys.get(3076)
-            if code in EPSG_LINEAR_UNITS:
-                vertical = keys.get(4099, code)
-                factor = EPSG_LINEAR_UNITS[int(code)]
-                return LasUnits(factor, EPSG_LINEAR_UNITS.get(int(vertical), factor),
-                                f"GeoTIFF key EPSG:{int(code)}")
+            break
+    wkts = []
     for vlr in las.header.vlrs:
         if type(vlr).__name__ == "WktCoordinateSystemVlr":
-            text = vlr.string if isinstance(vlr.string, str) else str(vlr.string)
-            units = re.findall(r'UNIT\["([^"]+)",\s*([0-9.eE+-]+)', text)
-            if units:  # the last UNIT of a projected CRS is its linear unit
-                name, factor = units[-1]
-                try:
-                    value = float(factor)
-                except ValueError:
-                    continue
-                if 0.2 < value < 2.0:
-                    return LasUnits(value, value, f"WKT unit '{name}'")
+            wkts.append(vlr.string if isinstance(vlr.string, str) else str(vlr.string))
+    return _units(keys, wkts)
+
+
+def _header_units(keys: "GeoKeys | None", wkt: str | None) -> LasUnits:
+    """:func:`las_units` of the records :func:`las_geokeys` read."""
+    found = None
+    if keys is not None:
+        d = keys.directory
+        found = {d[i]: d[i + 3] for i in range(4, len(d) - 3, 4) if d[i + 1] == 0}
+    return _units(found, [wkt] if wkt else [])
+
+
+def _units(keys: dict | None, wkts: list[str]) -> LasUnits:
+    """The units of GeoTIFF keys (id -> short value) or, else, of the WKT texts."""
+    if keys is not None:
+        code = keys.get(3076)
+        if code in EPSG_LINEAR_UNITS:
+            vertical = keys.get(4099, code)
+            factor = EPSG_LINEAR_UNITS[int(code)]
+            return LasUnits(factor, EPSG_LINEAR_UNITS.get(int(vertical), factor),
+                            f"GeoTIFF key EPSG:{int(code)}")
+    for text in wkts:
+        units = re.findall(r'UNIT\["([^"]+)",\s*([0-9.eE+-]+)', text)
+        if units:  # the last UNIT of a projected CRS is its linear unit
+            name, factor = units[-1]
+            try:
+                value = float(factor)
+            except ValueError:
+                continue
+            if 0.2 < value < 2.0:
+                return LasUnits(value, value, f"WKT unit '{name}'")
     return LasUnits(1.0, 1.0, "unknown")
 
 
@@ -394,6 +416,170 @@ def write_las(path: str | os.PathLike, classification, *,
         las.write(str(path))
     except Exception as exc:  # laspy raises many types (no LAZ backend, a full disk)
         raise InputError(f"{path}: could not write the LAS file ({exc})") from exc
+    return path
+
+
+#: file suffixes :func:`write_geotiff` writes
+GEOTIFF_EXTENSIONS = (".tif", ".tiff")
+#: the value :func:`write_geotiff` stores in cells without data (GDAL_NODATA tag 42113 too)
+NODATA = -9999.0
+#: GeoTIFF tags and keys :func:`write_geotiff` writes
+_PIXEL_SCALE, _TIEPOINT, _GEOKEYS, _GEODOUBLES, _GEOASCII, _GDAL_NODATA = \
+    33550, 33922, 34735, 34736, 34737, 42113
+_RASTER_TYPE_KEY, _PIXEL_IS_AREA = 1025, 1
+
+
+@dataclass(frozen=True)
+class GeoKeys:
+    """A coordinate system as GeoTIFF stores it: the GeoKeyDirectory (uint16, a header of four
+    then four per key), and the double and ASCII parameters its keys point into. A LAS file
+    carries the same three records (LASF_Projection VLRs 34735-34737)."""
+
+    directory: tuple[int, ...]
+    doubles: tuple[float, ...] = ()
+    ascii: str = ""
+
+    @classmethod
+    def from_epsg(cls, code: int) -> "GeoKeys":
+        """A projected coordinate system by its EPSG code (ProjectedCSTypeGeoKey)."""
+        return cls((1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, int(code)))
+
+    def with_key(self, key: int, value: int) -> "GeoKeys":
+        """The same keys with ``key`` set to the short ``value`` (kept in ascending order)."""
+        d = list(self.directory)
+        keys = [tuple(d[i:i + 4]) for i in range(4, 4 + 4 * d[3], 4)]
+        # (key 0 is no GeoKey: a few LAS writers leave such an empty entry)
+        keys = sorted([k for k in keys if k[0] not in (0, key)] + [(key, 0, 1, int(value))])
+        return GeoKeys((d[0], d[1], d[2], len(keys), *[v for k in keys for v in k]),
+                       self.doubles, self.ascii)
+
+
+def check_epsg(code) -> int:
+    """An EPSG code of a projected coordinate system (metres or feet), as an int; raises
+    :class:`InputError` for anything else (a geographic CRS in degrees cannot hold a cloud
+    in metres)."""
+    if isinstance(code, bool) or not isinstance(code, (int, np.integer)) or \
+            not 1024 <= int(code) <= 32766:
+        raise InputError(f"epsg must be the EPSG code of a projected coordinate system (an "
+                         f"integer such as 32633 for UTM zone 33N), got {code!r}")
+    if 4000 <= int(code) < 5000:
+        raise InputError(f"EPSG:{int(code)} is a geographic coordinate system (degrees); give the "
+                         "projected one the cloud's metres are in (e.g. its UTM zone, 326xx "
+                         "north or 327xx south)")
+    return int(code)
+
+
+def las_geokeys(source: "LasSource | str | os.PathLike") -> tuple[GeoKeys | None, str | None]:
+    """The coordinate system of a LAS/LAZ file, read from its header alone: its GeoTIFF keys
+    (the LASF_Projection records 34735-34737) when it has them, and its WKT (record 2112)
+    when it has one; (None, None) for a file that declares neither."""
+    path = source.path if isinstance(source, LasSource) else Path(source)
+    try:
+        import laspy
+    except ImportError:  # pragma: no cover - the extra is installed in the tests
+        raise InputError(f"{path}: reading LAS/LAZ needs laspy; install the extra: "
+                         "pip install 'o3d_terrain[las]'") from None
+    _check_readable(Path(path))
+    try:
+        with laspy.open(str(path)) as reader:
+            header = reader.header
+    except Exception as exc:  # laspy raises many types on corrupt or unsupported files
+        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+    records = {}
+    for vlr in list(header.vlrs) + list(getattr(header, "evlrs", None) or []):
+        if getattr(vlr, "user_id", "").rstrip("\0") == "LASF_Projection":
+            records.setdefault(int(vlr.record_id), vlr)
+    keys = wkt = None
+    if 34735 in records:
+        directory = np.frombuffer(records[34735].record_data_bytes(), "<u2")
+        doubles = np.frombuffer(records[34736].record_data_bytes(), "<f8") \
+            if 34736 in records else np.zeros(0)
+        text = records[34737].record_data_bytes().decode("latin-1").rstrip("\0") \
+            if 34737 in records else ""
+        if directory.size >= 4 and directory.size >= 4 + 4 * int(directory[3]):
+            keys = GeoKeys(tuple(int(v) for v in directory[:4 + 4 * int(directory[3])]),
+                           tuple(float(v) for v in doubles), text)
+    if 2112 in records:
+        raw = records[2112].record_data_bytes()
+        wkt = raw.decode("utf-8", errors="replace").rstrip("\0").strip()
+        wkt = wkt if "[" in wkt else None  # some writers leave the record empty or quoted
+    return keys, wkt
+
+
+def write_geotiff(path: str | os.PathLike, values, x_min: float, y_min: float,
+                  cell_size: float, *, heights: bool = True,
+                  source: "LasSource | str | os.PathLike | None" = None,
+                  epsg: int | None = None) -> Path:
+    """Write a single-band float32 GeoTIFF of square cells (deflate-compressed, north up,
+    PixelIsArea): ``values[ix, iy]`` (x first, like a HeightGrid; NaN = no data, stored as
+    :data:`NODATA` with the GDAL_NODATA tag) of cells ``cell_size`` m wide whose lower-left
+    corner is (``x_min``, ``y_min``) in metres.
+
+    With ``source`` (a :class:`LasSource`, or the path of a LAS/LAZ file read with
+    ``read_cloud``'s default units) the raster takes the file's coordinate system: its GeoTIFF
+    keys, copied, or its WKT in a ``.aux.xml`` file beside the raster (which GDAL and QGIS
+    read) when it has no keys; and its units: a tile in US feet gets its cells, corner and,
+    with ``heights``, its values back in feet. ``epsg`` (a projected coordinate system's
+    code) gives or replaces the keys. Without either, the raster is placed in the cloud's own
+    coordinates with no coordinate system. Needs ``tifffile`` (the ``las`` or ``dem`` extra).
+    """
+    path = Path(path)
+    if path.suffix.lower() not in GEOTIFF_EXTENSIONS:
+        raise InputError(f"{path}: a GeoTIFF name must end in .tif or .tiff")
+    try:
+        import tifffile
+    except ImportError:
+        raise InputError(f"{path}: writing GeoTIFF needs tifffile; install the extra: "
+                         "pip install 'o3d_terrain[las]' (or [dem])") from None
+    grid = np.asarray(values, dtype=np.float64)
+    if grid.ndim != 2 or min(grid.shape) < 1:
+        raise InputError(f"{path}: values must be a 2-D array of cells [ix, iy], got shape "
+                         f"{grid.shape}")
+    if not (math.isfinite(cell_size) and cell_size > 0):
+        raise InputError(f"{path}: cell_size must be a positive number of metres, got "
+                         f"{cell_size!r}")
+    if not (math.isfinite(x_min) and math.isfinite(y_min)):
+        raise InputError(f"{path}: the raster's corner ({x_min}, {y_min}) is not finite")
+    keys = GeoKeys.from_epsg(check_epsg(epsg)) if epsg is not None else None
+    sidecar_wkt = None  # a WKT for GDAL's .aux.xml: the file's, when it has no keys
+    horizontal = vertical = 1.0
+    if source is not None:
+        if not isinstance(source, LasSource):
+            source = LasSource(Path(source), "metres", 0)
+        file_keys, wkt = las_geokeys(source)
+        if keys is None:
+            keys = file_keys
+            sidecar_wkt = wkt if file_keys is None else None
+        if source.units == "metres":  # the cloud was converted to metres on reading
+            units = _header_units(file_keys, wkt)
+            horizontal, vertical = units.horizontal, units.vertical
+    if heights and vertical != 1.0:
+        grid = grid / vertical
+    image = np.where(np.isfinite(grid), grid, NODATA).astype(np.float32).T[::-1]
+    scale = cell_size / horizontal
+    top = (y_min + grid.shape[1] * cell_size) / horizontal
+    tags = [(_PIXEL_SCALE, "d", 3, (scale, scale, 0.0), True),
+            (_TIEPOINT, "d", 6, (0.0, 0.0, 0.0, x_min / horizontal, top, 0.0), True)]
+    keys = (keys or GeoKeys((1, 1, 0, 0))).with_key(_RASTER_TYPE_KEY, _PIXEL_IS_AREA)
+    tags.append((_GEOKEYS, "H", len(keys.directory), keys.directory, True))
+    if keys.doubles:
+        tags.append((_GEODOUBLES, "d", len(keys.doubles), keys.doubles, True))
+    if keys.ascii:
+        tags.append((_GEOASCII, "s", 0, keys.ascii, True))
+    tags.append((_GDAL_NODATA, "s", 0, f"{NODATA:g}", True))
+    output_path(path)
+    try:
+        tifffile.imwrite(path, np.ascontiguousarray(image), photometric="minisblack",
+                         compression="zlib", extratags=tags)
+    except Exception as exc:  # a full disk, a non-ASCII key parameter
+        raise InputError(f"{path}: could not write the GeoTIFF ({exc})") from exc
+    sidecar = path.with_name(path.name + ".aux.xml")
+    if sidecar_wkt:
+        text = sidecar_wkt.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+        sidecar.write_text("<PAMDataset>\n  <SRS dataAxisToSRSAxisMapping=\"1,2\">"
+                           f"{text}</SRS>\n</PAMDataset>\n", encoding="utf-8")
+    elif sidecar.exists():  # an older run's coordinate system must not describe this raster
+        sidecar.unlink()
     return path
 
 

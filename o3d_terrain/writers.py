@@ -16,7 +16,8 @@ from ._files import output_path
 from .errors import InputError
 from .frame import HEIGHTS_ABOVE_TERRAIN, LABELS, Frame
 from .grid import HeightGrid
-from .options import Component, Range, component, option
+from .options import NON_NEGATIVE, POSITIVE, Component, Range, component, option
+from .raster import LAYERS, MAX_GAP, write_terrain_raster
 from .segment import TerrainLabel
 
 #: every registered writer by class name (the YAML ``type:`` under ``outputs:``)
@@ -168,6 +169,55 @@ class WriteLas(Writer):
             intensities=frame.attribute("intensities") if frame.has_attribute("intensities")
             else None,
             colors=frame.attribute("colors") if frame.has_attribute("colors") else None)]
+
+
+@writer
+class WriteRaster(Writer):
+    """Write the terrain surface as a GeoTIFF raster: a DTM (heights) or a slope map."""
+
+    path: str = option("terrain.tif", kind="path", help="file name (.tif or .tiff)")
+    layer: str = option("height", choices=LAYERS,
+                        help="height: the terrain's height (a DTM, in the cloud's units); "
+                             "slope: its slope in degrees")
+    cell_size: float = option(None, kind=float, nullable=True, unit="m", rule=POSITIVE,
+                              help="raster cell size; null = the fitted grid's cell size")
+    max_gap: float = option(
+        MAX_GAP, kind=float, nullable=True, unit="m", rule=NON_NEGATIVE,
+        help="cells farther than this from every terrain point hold no data (null: every "
+             "cell of the surface's region)")
+    epsg: int = option(None, kind=int, nullable=True,
+                       help="EPSG code of the projected coordinate system the cloud is in; "
+                            "null = the LAS/LAZ file's own (none for other clouds)")
+
+    def required_products(self) -> tuple[str, ...]:
+        return ("surface",)
+
+    def check_options(self) -> list[str]:
+        problems = []
+        if Path(self.path).suffix.lower() not in io.GEOTIFF_EXTENSIONS:
+            problems.append(f"The 'path' option of WriteRaster must end in .tif or .tiff. "
+                            f"Got {self.path!r}.")
+        if self.epsg is not None:
+            try:
+                io.check_epsg(self.epsg)
+            except InputError as exc:
+                problems.append(f"The 'epsg' option of WriteRaster: {exc}")
+        return problems
+
+    def write(self, frame: Frame, out_dir: Path) -> list[Path]:
+        """The surface at the cells' centres (:func:`o3d_terrain.raster.terrain_raster`),
+        supported by the Segmenter's terrain points (every point without a Segmenter), in the
+        coordinate system and units of the LAS/LAZ file ReadCloud read (product
+        ``las_source``) or ``epsg``."""
+        surface = frame.product("surface")
+        positions = frame.positions
+        if frame.has_attribute(LABELS):
+            labels = np.asarray(frame.attribute(LABELS))
+            positions = positions[labels == TerrainLabel.TERRAIN]
+        return [write_terrain_raster(
+            self._target(out_dir, self.path), surface, cell_size=self.cell_size,
+            layer=self.layer, support=positions, max_gap=self.max_gap,
+            source=frame.products.get("las_source"), epsg=self.epsg)]
 
 
 def image_layers(product: Any) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:

@@ -4,7 +4,8 @@ from pathlib import Path
 
 from o3d_terrain.stages import (GridQuantize, RationalBSplineTerrain, ReadCloud, Segmenter,
                                 SlopeEstimator)
-from o3d_terrain.writers import WriteAttribute, WriteCloud, WriteImage, WriteLas, WriteProduct
+from o3d_terrain.writers import (WriteAttribute, WriteCloud, WriteImage, WriteLas, WriteProduct,
+                                 WriteRaster)
 
 
 def run(output_dir, input_path=None):
@@ -18,6 +19,8 @@ def run(output_dir, input_path=None):
     out = Path(output_dir)
     for writer in (
         WriteLas(path="classified.laz"),  # ground 2, obstacles 1, below 7, HeightAboveGround
+        WriteRaster(path="dtm.tif"),  # the terrain's heights, 1 m cells, the tile's CRS
+        WriteRaster(path="slope.tif", layer="slope"),  # degrees
         WriteCloud(path="labelled.ply", color_by="labels"),
         WriteAttribute(attribute="labels", path="labels.npy"),
         WriteImage(product="surface", path="terrain_height.png"),
