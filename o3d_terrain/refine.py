@@ -37,6 +37,8 @@ about the mean the same way.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .grid import MEASURED, HeightGrid, quantize_points
@@ -49,7 +51,8 @@ __all__ = ["refine_surface", "refit_layout", "refit_cap", "steep_share",
            "supported_control_points", "REFINE_MIN_CELLS",
            "REFINE_MAX_CONTROL_POINTS", "REFINE_REPEAT_MOVE", "REFINE_REPEATS",
            "STEEP_REFINE_MAX_CONTROL_POINTS", "STEEP_SHARE", "STEEP_SLOPE_DEG",
-           "REFINE_CAP_POINTS", "REFINE_LIMIT_CONTROL_POINTS"]
+           "REFINE_CAP_POINTS", "REFINE_LIMIT_CONTROL_POINTS", "TOP_DOWN_SPAN_CELLS",
+           "DENSITY_BLOCK", "density_cap"]
 
 #: fewest grid cells with terrain points for a refit, in multiples of the control points
 #: (on a vehicle's scan, of the control points whose support holds terrain points: a forward
@@ -76,6 +79,18 @@ STEEP_REFINE_MAX_CONTROL_POINTS = 64
 #: scans: the refit's layout grows with the points")
 REFINE_CAP_POINTS = 100_000
 REFINE_LIMIT_CONTROL_POINTS = 128
+#: a top-down scan's refit (an airborne tile, a photogrammetric cloud) also grows to about one
+#: control point per TOP_DOWN_SPAN_CELLS grid cells of terrain points (the spacing
+#: sqrt(that many cells' worth of area) over the ground the points cover, never under the
+#: automatic layout's 2 cells or 1 m, nor beyond its
+#: :data:`o3d_terrain.terrain.AUTO_LIMIT_CONTROL_POINTS` per axis; twice the
+#: :data:`REFINE_MIN_CELLS` a refit needs): the robust loop's layout of such a scan is set for
+#: the labels of sparse tiles, and the DTM a survey takes from the surface wants the points'
+#: own detail, which the thin-plate penalty keeps from the noise (docs/algorithm.md, "A
+#: top-down scan's refit follows its points")
+TOP_DOWN_SPAN_CELLS = 2.0
+#: ... the ground the points cover measured in blocks of this many metres that hold any
+DENSITY_BLOCK = 4.0
 STEEP_SLOPE_DEG = 15.0
 STEEP_SHARE = 0.2
 #: the steep share is measured on at most this many of those cells (evenly picked), and so
@@ -91,8 +106,8 @@ REFINE_REPEATS = 2
 def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size: float,
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
                    cell_plane: bool = True, max_control_points: int | None = None,
-                   repeats: int = REFINE_REPEATS, vehicle: bool = False
-                   ) -> tuple[TerrainSurface, int, int]:
+                   repeats: int = REFINE_REPEATS, vehicle: bool = False,
+                   top_down: bool = False) -> tuple[TerrainSurface, int, int]:
     """``(surface, cells, refits)``: the surface's layout refitted to the points ``positions``
     that the automatic labelling against ``surface`` calls terrain (module docstring), the
     number of grid cells that held terrain points in the last refit made, and how many refits
@@ -113,12 +128,16 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     automatic layout up to that many per axis, more on a dense scan (:func:`refit_cap`,
     :func:`refit_layout`; a repeat keeps the first refit's layout and knots); vehicle: the
     points are a vehicle's scan, whose terrain cells :data:`REFINE_MIN_CELLS` weighs against
-    the control points under its terrain points only (:func:`supported_control_points`)."""
+    the control points under its terrain points only (:func:`supported_control_points`);
+    top_down: the points are a top-down scan (an airborne tile), whose automatic layout also
+    grows to about one control point per :data:`TOP_DOWN_SPAN_CELLS` cells of terrain points
+    (:func:`density_cap`)."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     refits, cells = 0, 0
     for _ in range(1 + max(0, int(repeats))):
         refined, got, move = _refit(surface, p, cell_size, smoothing, noise_floor,
-                                    sensor_origin, cell_plane, max_control_points, vehicle)
+                                    sensor_origin, cell_plane, max_control_points, vehicle,
+                                    top_down)
         if refined is surface:  # too few terrain cells: the surface so far stays
             cells = cells if refits else got
             break
@@ -130,7 +149,7 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
 
 def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: float,
            noise_floor: float, sensor_origin, cell_plane: bool,
-           max_control_points: int | None, vehicle: bool = False
+           max_control_points: int | None, vehicle: bool = False, top_down: bool = False
            ) -> tuple[TerrainSurface, int, float]:
     """One refit of :func:`refine_surface`: ``(refined, cells, move)``, move the median of
     |refined - surface| (m) over at most :data:`STEEP_SAMPLE` of the refit's terrain cells
@@ -167,6 +186,8 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
     layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
     if max_control_points is not None:
         most = refit_cap(max_control_points, len(terrain))
+        if top_down:
+            most = max(most, density_cap(grid, surface.degree))
         layout, knots = refit_layout(surface, grid, most, local)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
                       knots)
@@ -242,6 +263,26 @@ def refit_cap(most: int, terrain_points: int) -> int:
         return int(most)
     grown = int(round(most * (terrain_points / REFINE_CAP_POINTS) ** 0.25))
     return max(int(most), min(grown, REFINE_LIMIT_CONTROL_POINTS))
+
+
+def density_cap(grid: HeightGrid, degree: int) -> int:
+    """Control points per axis (along ``grid``'s longer side) of one every
+    sqrt(:data:`TOP_DOWN_SPAN_CELLS` x the area per measured cell) metres, that area the
+    blocks of about :data:`DENSITY_BLOCK` metres holding measured cells over their count
+    (the grid's own cells would count a sparse tile's gaps between points as no ground)."""
+    measured = grid.state == MEASURED
+    cells = int(measured.sum())
+    if cells == 0:
+        return degree + 1
+    step = max(1, int(round(DENSITY_BLOCK / grid.cell_size)))
+    nx, ny = measured.shape
+    padded = np.zeros((-(-nx // step) * step, -(-ny // step) * step), bool)
+    padded[:nx, :ny] = measured
+    blocks = padded.reshape(padded.shape[0] // step, step, -1, step).any(axis=(1, 3))
+    area = float(blocks.sum()) * (step * grid.cell_size) ** 2
+    spacing = math.sqrt(TOP_DOWN_SPAN_CELLS * area / cells)
+    x_min, x_max, y_min, y_max = grid.region
+    return int(round(max(x_max - x_min, y_max - y_min) / spacing)) + degree
 
 
 def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import o3d_terrain
+from o3d_terrain import refine
 from o3d_terrain.errors import InputError
 from o3d_terrain.grid import quantize_points
 from o3d_terrain.refine import (
@@ -247,10 +248,45 @@ def test_steep_relief_gets_a_finer_refit_and_a_tilt_does_not(rng):
         assert (share > 0.5) if name == "relief" else (share < 0.02), (name, share)
     assert shapes["relief"] == (STEEP_REFINE_MAX_CONTROL_POINTS,) * 2
     assert shapes["tilted"] == (REFINE_MAX_CONTROL_POINTS,) * 2
-    # a top-down scan keeps its own layout (no points near the sensor origin)
+    # a top-down scan (no points near the sensor origin) takes no steep cap: its refit's layout
+    # follows its points' density (test below), which held back leaves it under the cap
     p = _scan_of(relief, rng) + [5000.0, 3000.0, 0.0]
     grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
-    assert max(stage.fit(grid, p).surface.control_points.shape) < STEEP_REFINE_MAX_CONTROL_POINTS
+    assert stage.fit(grid, p).surface.control_points.shape != shapes["relief"]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(refine, "TOP_DOWN_SPAN_CELLS", 1e12)
+        held = stage.fit(grid, p).surface.control_points.shape
+    assert max(held) < STEEP_REFINE_MAX_CONTROL_POINTS
+
+
+def test_a_top_down_refit_follows_its_points_density(rng, monkeypatch):
+    """An airborne-like tile, 6 points/m2 over 80 m of rolling ground with 0.5 m bumps about
+    10 m across: the refit takes one control point per about TOP_DOWN_SPAN_CELLS cells of
+    terrain points, and the DTM it gives follows the bumps the robust loop's layout of a top-down
+    scan smoothed away."""
+    def terrain(x, y):
+        return 1.5 * np.sin(x / 5.0) * np.cos(y / 7.0) + 0.5 * np.sin(x / 1.5) * np.cos(y / 2.0) \
+            + 0.02 * x
+
+    n = 38_400
+    x, y = rng.uniform(0.0, 80.0, (2, n))
+    p = np.column_stack([x + 500000.0, y + 4500000.0, terrain(x, y) + rng.normal(0, 0.03, n)])
+    stage = RationalBSplineTerrain()
+    grid = quantize_points(p, cell_size=0.5, plane=True, tilt_spread=stage.noise_floor)
+    gx, gy = np.meshgrid(np.arange(3.0, 77.0, 0.5), np.arange(3.0, 77.0, 0.5))
+
+    def rmse(surface):
+        error = surface(gx + 500000.0, gy + 4500000.0) - terrain(gx, gy)
+        return float(np.sqrt(np.mean(error ** 2)))
+
+    grown = stage.fit(grid, p).surface
+    # 6 points/m2 leave about 3 of the 4 cells of each m2 measured: 0.8 m, so the 1 m floor
+    assert grown.control_points.shape == (83, 83)
+    monkeypatch.setattr(refine, "TOP_DOWN_SPAN_CELLS", 1e12)
+    held = stage.fit(grid, p).surface
+    assert held.control_points.shape[0] < 0.8 * grown.control_points.shape[0]
+    # measured: 0.062 m with the loop's layout (48 x 48) held, 0.020 m grown (72 x 72)
+    assert rmse(grown) < 0.5 * rmse(held)
 
 
 def test_a_refit_that_moved_the_surface_is_made_again_from_its_own_labels(rng):

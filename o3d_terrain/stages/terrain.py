@@ -275,7 +275,8 @@ class RationalBSplineTerrain(Stage):
         refined, _, refits = refine_surface(
             surface, positions, cell_size=grid.cell_size, smoothing=self.smoothing,
             noise_floor=self.noise_floor, sensor_origin=self.sensor_origin,
-            cell_plane=self.cell_plane, max_control_points=most, vehicle=vehicle)
+            cell_plane=self.cell_plane, max_control_points=most, vehicle=vehicle,
+            top_down=top_down)
         return dataclasses.replace(fit, surface=refined, robust_surface=surface, refits=refits)
 
     @property
