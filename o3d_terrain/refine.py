@@ -82,8 +82,8 @@ REFINE_LIMIT_CONTROL_POINTS = 128
 #: a top-down scan's refit (an airborne tile, a photogrammetric cloud) also grows to about one
 #: control point per TOP_DOWN_SPAN_CELLS grid cells of terrain points (the spacing
 #: sqrt(that many cells' worth of area) over the ground the points cover, never under the
-#: automatic layout's 2 cells or 1 m, nor beyond its
-#: :data:`o3d_terrain.terrain.AUTO_LIMIT_CONTROL_POINTS` per axis; twice the
+#: automatic layout's 2 cells or 1 m, nor beyond REFINE_LIMIT_CONTROL_POINTS per axis, the
+#: limit of the dense scans' growth, unless the loop's own layout has more; twice the
 #: :data:`REFINE_MIN_CELLS` a refit needs): the robust loop's layout of such a scan is set for
 #: the labels of sparse tiles, and the DTM a survey takes from the surface wants the points'
 #: own detail, which the thin-plate penalty keeps from the noise (docs/algorithm.md, "A
@@ -187,7 +187,8 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
     if max_control_points is not None:
         most = refit_cap(max_control_points, len(terrain))
         if top_down:
-            most = max(most, density_cap(grid, surface.degree))
+            most = max(most, min(density_cap(grid, surface.degree),
+                                 REFINE_LIMIT_CONTROL_POINTS))
         layout, knots = refit_layout(surface, grid, most, local)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
                       knots)
