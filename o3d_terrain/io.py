@@ -145,16 +145,21 @@ def _read_kitti_bin(path: Path) -> o3d.t.geometry.PointCloud:
     return cloud_from_numpy(data[:, :3].astype(np.float64), intensities=data[:, 3])
 
 
+def _laspy(path: Path, doing: str):
+    """The laspy module, or an InputError naming ``path`` and the extra that installs it."""
+    try:
+        import laspy
+    except ImportError:  # pragma: no cover - the extra is installed in the tests
+        raise InputError(f"{path}: {doing} LAS/LAZ needs laspy; install the extra: "
+                         "pip install 'o3d_terrain[las]'") from None
+    return laspy
+
+
 def open_las(path: str | os.PathLike):
     """A ``laspy.LasData`` of a LAS/LAZ file, with clear errors for a missing laspy or LAZ
     backend, a corrupt file and a file without points."""
     path = Path(path)
-    try:
-        import laspy
-    except ImportError as exc:
-        raise InputError(
-            f"{path}: reading LAS/LAZ needs laspy; install the extra: pip install 'o3d_terrain[las]'"
-        ) from exc
+    laspy = _laspy(path, "reading")
     try:
         las = laspy.read(str(path))
     except laspy.errors.LaspyException as exc:
@@ -350,11 +355,7 @@ def write_las(path: str | os.PathLike, classification, *,
     path = Path(path)
     if path.suffix.lower() not in LAS_EXTENSIONS:
         raise InputError(f"{path}: a LAS file name must end in .las or .laz")
-    try:
-        import laspy
-    except ImportError:  # pragma: no cover - the extra is installed in the tests
-        raise InputError(f"{path}: writing LAS/LAZ needs laspy; install the extra: "
-                         "pip install 'o3d_terrain[las]'") from None
+    laspy = _laspy(path, "writing")
     classes = np.asarray(classification)
     if classes.ndim != 1 or not np.issubdtype(classes.dtype, np.integer):
         raise InputError(f"{path}: classification must be a 1-D integer array, got "
@@ -474,11 +475,7 @@ def las_geokeys(source: "LasSource | str | os.PathLike") -> tuple[GeoKeys | None
     (the LASF_Projection records 34735-34737) when it has them, and its WKT (record 2112)
     when it has one; (None, None) for a file that declares neither."""
     path = source.path if isinstance(source, LasSource) else Path(source)
-    try:
-        import laspy
-    except ImportError:  # pragma: no cover - the extra is installed in the tests
-        raise InputError(f"{path}: reading LAS/LAZ needs laspy; install the extra: "
-                         "pip install 'o3d_terrain[las]'") from None
+    laspy = _laspy(path, "reading")
     _check_readable(Path(path))
     try:
         with laspy.open(str(path)) as reader:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from ._kernels import grid as _grid
 from .errors import InputError
 from .grid import MAX_CELLS
 from .io import LasSource, write_geotiff
@@ -63,12 +64,12 @@ def terrain_raster(surface, *, cell_size: float, layer: str = "height", support=
         p = np.asarray(support, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] < 2:
             raise InputError(f"support must be (N, 2) or (N, 3) points, got shape {p.shape}")
-        p = p[np.isfinite(p[:, 0]) & np.isfinite(p[:, 1])]
-        seen = np.zeros((nx, ny), bool)
-        ix = np.floor((p[:, 0] - x_min) / cell_size).astype(np.int64)
-        iy = np.floor((p[:, 1] - y_min) / cell_size).astype(np.int64)
-        inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-        seen[ix[inside], iy[inside]] = True
+        # the grid's cell of each point (-1 outside, -2 non-finite; HeightGrid.cell_of)
+        cells = _grid.cell_indices(np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]),
+                                   float(x_min), float(y_min), float(cell_size), nx, ny)
+        seen = np.zeros(nx * ny, bool)
+        seen[cells[cells >= 0]] = True
+        seen = seen.reshape(nx, ny)
         if not seen.any():
             values[:] = np.nan
         else:
