@@ -103,21 +103,33 @@ def test_too_few_terrain_cells_keep_the_robust_surface(rng):
     assert 0 < cells < 144
 
 
-def test_control_points_under_the_points_are_those_of_their_knot_spans(rng):
+def test_control_points_under_the_cells_with_points_are_those_of_their_knot_spans(rng):
     p = np.column_stack([rng.uniform(0, 40, 2000), rng.uniform(0, 40, 2000),
                          rng.normal(0, 0.01, 2000)])
     surface = o3d_terrain.fit_terrain(p, refine=False, control_points=(12, 12))
-    assert supported_control_points(surface, p) == 144
-    # points in one knot span: its (degree + 1)^2 control points
+    region = surface.region
+
+    def under(points):
+        grid = quantize_points(np.column_stack([points, np.zeros(len(points))]),
+                               cell_size=0.5, region=region, fill_empty=False)
+        return supported_control_points(surface, grid)
+
+    assert under(p[:, :2]) == 144
     x0, y0, _ = surface.origin
-    inside = np.column_stack([np.full(5, x0 + 0.5 * (surface.knots_x[5] + surface.knots_x[6])),
-                              np.full(5, y0 + 0.5 * (surface.knots_y[7] + surface.knots_y[8]))])
-    assert supported_control_points(surface, inside) == 16
+    kx, ky = surface.knots_x + x0, surface.knots_y + y0
+    # points in one cell inside one knot span: its (degree + 1)^2 control points
+    inside = np.full((5, 2), [0.5 * (kx[5] + kx[6]), 0.5 * (ky[7] + ky[8])])
+    assert under(inside) == 16
     # the first span and its neighbour along x: 4 x 4 and one more row of 4
-    first_x, first_y = x0 + surface.knots_x[3] + 0.1, y0 + surface.knots_y[3] + 0.1
-    corner = np.array([[first_x, first_y],
-                       [x0 + 0.5 * (surface.knots_x[4] + surface.knots_x[5]), first_y]])
-    assert supported_control_points(surface, corner) == 20
+    corner = np.array([[kx[3] + 0.1, ky[3] + 0.1], [0.5 * (kx[4] + kx[5]), ky[3] + 0.1]])
+    assert under(corner) == 20
+    # a point in a cell across a knot: the spans on both sides of it (the cell's points may
+    # lie on either), never fewer than the point's own span has
+    cell = 0.5
+    ix = int((kx[6] - region[0]) // cell)
+    assert region[0] + ix * cell < kx[6] < region[0] + (ix + 1) * cell
+    point = np.array([[kx[6] + 1e-6, 0.5 * (ky[7] + ky[8])]])
+    assert under(point) == 20
 
 
 def test_a_forward_field_of_view_keeps_its_refit(rng):
