@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, checked_keywords
 from .frame import LABELS, Frame, as_frame, warn_coarse_float32
 from .grid import region_of
 from .ground_layer import default_layer
@@ -28,6 +28,18 @@ from .stages.grid_quantize import GridQuantize
 from .stages.terrain import RationalBSplineTerrain, Segmenter
 
 __all__ = ["fit_terrain", "segment_terrain", "cloud_positions"]
+
+
+#: what a keyword users bring from elsewhere (Open3D's ``segment_plane``, voxel grids) is
+#: called here, or why it has no counterpart (:func:`~o3d_terrain.errors.checked_keywords`)
+_RANSAC = "the terrain is a fitted surface, not a RANSAC plane: there is no sampling to set"
+_KEYWORD_HINTS = {
+    "threshold": "the obstacle threshold is segment_terrain's distance_threshold (m above the "
+                 "surface; None = from the data)",
+    "ransac_n": _RANSAC, "num_iterations": _RANSAC, "probability": _RANSAC,
+    "voxel_size": "the grid's cell is cell_size (m)",
+    "resolution": "the grid's cell is cell_size (m)",
+}
 
 
 def cloud_positions(cloud: Any) -> np.ndarray:
@@ -190,6 +202,7 @@ def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *,
     return _auto_threshold(surface.heights_above(positions), factor=factor, low=low, high=high)
 
 
+@checked_keywords(_KEYWORD_HINTS)
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
                 control_points: Sequence[int] | int | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,
@@ -262,6 +275,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     return _terrain_frame(frame, quantize, terrain).product("surface")
 
 
+@checked_keywords(_KEYWORD_HINTS)
 def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     cell_size: float = 0.5, control_points: Sequence[int] | int | None = None,
                     degree: int = 3, distance_threshold: float | None = None,

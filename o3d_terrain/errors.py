@@ -7,8 +7,12 @@ where the problem is (stage, option, file) and how to fix it.
 from __future__ import annotations
 
 import difflib
+import functools
+import inspect
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Mapping, Sequence, TypeVar
+
+_F = TypeVar("_F", bound=Callable)
 
 
 class O3DTerrainError(Exception):
@@ -62,6 +66,53 @@ def did_you_mean(name: str, candidates: Sequence[str]) -> str:
     """Return " (did you mean 'x'?)" for the closest candidate, or "" when none is close."""
     close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
     return f"did you mean '{close[0]}'?" if close else ""
+
+
+def checked_keywords(hints: Mapping[str, str] | None = None) -> Callable[[_F], _F]:
+    """Decorator for the public functions that take many keyword options: a call with a
+    keyword the function does not take raises the ``TypeError`` Python would, naming the
+    closest keywords it does take (up to 3, "did you mean ...?") or, for a keyword in
+    ``hints``, what the hint says (an option of Open3D's ``segment_plane`` with no
+    counterpart here, say). Calls with known keywords go straight through (one set
+    difference)."""
+
+    def decorate(func: _F) -> _F:
+        names = frozenset(inspect.signature(func).parameters)
+        known = sorted(names)
+
+        @functools.wraps(func)
+        def checked(*args, **kwargs):
+            unknown = kwargs.keys() - names
+            if unknown:
+                raise TypeError(_unknown_keywords(func.__name__, sorted(unknown), known, hints))
+            return func(*args, **kwargs)
+
+        return checked  # type: ignore[return-value]
+
+    return decorate
+
+
+def _unknown_keywords(function: str, unknown: Sequence[str], known: Sequence[str],
+                      hints: Mapping[str, str] | None) -> str:
+    """The message of :func:`checked_keywords`: per unknown keyword, its hint or the closest
+    known ones; the whole list of known ones once when some unknown keyword is close to none."""
+    lines = []
+    listed = False
+    for name in unknown:
+        text = f"{function}() got an unexpected keyword argument '{name}'"
+        close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+        if hints and name in hints:
+            text += f": {hints[name]}"
+        elif close:
+            text += "; did you mean " + (f"'{close[0]}'" if len(close) == 1 else
+                                         ", ".join(f"'{c}'" for c in close[:-1])
+                                         + f" or '{close[-1]}'") + "?"
+        else:
+            listed = True
+        lines.append(text)
+    if listed:
+        lines.append(f"{function}() takes {', '.join(known)}")
+    return "; ".join(lines)
 
 
 class TerrainWarning(UserWarning):

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 import open3d as o3d
 
-from .errors import InputError
+from .errors import InputError, checked_keywords
 from .frame import transform_points
 
 __all__ = ["level_cloud", "level_arrays", "levelling_transform", "tilt_deg", "up_axis_hint",
@@ -110,6 +110,7 @@ def tilt_deg(up: Sequence[float]) -> float:
     return math.degrees(math.atan2(math.hypot(u[0], u[1]), u[2]))
 
 
+@checked_keywords()
 def level_cloud(cloud: Any, up: Sequence[float], *,
                 sensor_origin: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[Any, np.ndarray]:
     """``(levelled, levelled_from_cloud)``: the cloud rotated about ``sensor_origin`` so that

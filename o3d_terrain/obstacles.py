@@ -30,7 +30,7 @@ import numpy as np
 
 from ._files import output_path
 from ._kernels import obstacles as _k
-from .errors import InputError
+from .errors import InputError, checked_keywords
 from .frame import HEIGHTS_ABOVE_TERRAIN, LABELS, as_frame
 from .segment import TerrainLabel
 
@@ -281,6 +281,7 @@ def _hull_candidates(points: np.ndarray, cluster: np.ndarray, ix, iy, nx: int, n
     return candidates[order], starts
 
 
+@checked_keywords()
 def detect_obstacles(cloud: Any, *, surface=None, labels: np.ndarray | None = None,
                      heights_above_terrain: np.ndarray | None = None, method: str = "grid",
                      cell_size: float = 0.3, eps: float = 0.5, min_points: int = 5,

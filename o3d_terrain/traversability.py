@@ -41,7 +41,7 @@ import numpy as np
 from ._files import output_path
 from ._kernels import bspline as _bs
 from ._kernels import obstacles as _k
-from .errors import InputError
+from .errors import InputError, checked_keywords
 from .frame import as_frame
 from .segment import TerrainLabel
 
@@ -441,6 +441,7 @@ def _tall_obstacles(obstacles, n: int, lethal_step: float) -> tuple[np.ndarray, 
     return point_obstacle, tall
 
 
+@checked_keywords()
 def traversability_cost(surface, cloud: Any = None, *,
                         vehicle: str | Path | VehicleProfile = "offroad_suv",
                         cell_size: float = 0.25,

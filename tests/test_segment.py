@@ -86,6 +86,24 @@ def test_segment_terrain_is_a_segment_plane_drop_in():
     np.testing.assert_allclose(surface.slope_deg(10.0, 0.0), np.degrees(np.arctan(0.1)), atol=0.5)
 
 
+def test_unknown_keywords_name_the_close_ones_before_any_work():
+    pts = np.zeros((0, 3))  # never read: the keywords are checked first
+    with pytest.raises(TypeError, match=r"'cel_size'; did you mean 'cell_size'\?"):
+        segment_terrain(pts, cel_size=0.5)
+    # what segment_plane users bring: its threshold's name here, its RANSAC options' absence
+    with pytest.raises(TypeError, match=r"'threshold': .*distance_threshold"):
+        segment_terrain(pts, threshold=0.2)
+    with pytest.raises(TypeError, match=r"'ransac_n': .*not a RANSAC plane"):
+        segment_terrain(pts, ransac_n=3, num_iterations=100)
+    with pytest.raises(TypeError, match=r"'smooth'; did you mean 'smoothing'\?"):
+        fit_terrain(pts, smooth=0.1)
+    # a keyword close to none: the whole list, once
+    with pytest.raises(TypeError) as info:
+        fit_terrain(pts, xyzzy=1, plugh=2)
+    assert "'plugh'" in str(info.value) and "'xyzzy'" in str(info.value)
+    assert str(info.value).count("fit_terrain() takes cell_plane, cell_size") == 1
+
+
 @pytest.mark.parametrize("grade", [0.0, 0.5, 1.0, 3.0])
 def test_thresholds_are_distances_along_the_surface_normal(grade):
     s = plane_surface(grade)
