@@ -44,7 +44,7 @@ import numpy as np
 from .grid import MEASURED, HeightGrid, quantize_points
 from .segment import TerrainLabel, segment_points
 from .spline import GridBasis, TerrainSurface, clamped_knots
-from .terrain import default_control_points, knot_densities
+from .terrain import LAYOUT_MAX_ASPECT, default_control_points, knot_densities
 from .threads import one_blas_thread
 
 __all__ = ["refine_surface", "refit_layout", "refit_cap", "steep_share",
@@ -189,7 +189,7 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
         if top_down:
             most = max(most, min(density_cap(grid, surface.degree),
                                  REFINE_LIMIT_CONTROL_POINTS))
-        layout, knots = refit_layout(surface, grid, most, local)
+        layout, knots = refit_layout(surface, grid, most, local, top_down)
     basis = GridBasis(grid.x_centers - x0, grid.y_centers - y0, layout, surface.degree, local,
                       knots)
     with one_blas_thread():  # a small banded solve: BLAS threads cost more than they give
@@ -300,17 +300,19 @@ def density_cap(grid: HeightGrid, degree: int) -> int:
 
 
 def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,
-                 local: tuple[float, float, float, float]
+                 local: tuple[float, float, float, float], top_down: bool = False
                  ) -> tuple[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """``(layout, (knots_x, knots_y))`` of the refit: per axis the automatic layout of
-    ``grid`` (:func:`o3d_terrain.terrain.default_control_points`) with at most ``most``
-    control points, never fewer than ``surface`` has; the surface's own knots when that is its
+    ``grid`` (:func:`o3d_terrain.terrain.default_control_points`, its axes each on its own on
+    a ``top_down`` scan) with at most ``most`` control points, never fewer than ``surface``
+    has; the surface's own knots when that is its
     layout, else knots over ``local`` (the region relative to the surface's origin) that are
     uniform where the surface's are and adaptive to the grid's measured cells where they are
     not (:func:`o3d_terrain.terrain.knot_densities`)."""
     n0, n1 = surface.control_points.shape
     degree = surface.degree
-    auto = default_control_points(grid, degree, most=most)
+    auto = default_control_points(grid, degree, most=most,
+                                  max_aspect=None if top_down else LAYOUT_MAX_ASPECT)
     layout = (max(n0, auto[0]), max(n1, auto[1]))
     if layout == (n0, n1):
         return layout, (surface.knots_x, surface.knots_y)

@@ -36,7 +36,8 @@ from .threads import one_blas_thread
 __all__ = ["fit_grid", "fit_grid_detailed", "TerrainFit", "IterationRecord",
            "default_control_points", "terrain_prior_mask", "sensor_ground_plane", "METHODS",
            "MAX_SLOPE_DEG", "STEEP_MAX_SLOPE_DEG", "STEEP_LIMIT_SHARE", "NOISE_FLOOR",
-           "TOP_DOWN_MAX_CONTROL_POINTS", "KNOT_PLACEMENTS", "knot_densities"]
+           "TOP_DOWN_MAX_CONTROL_POINTS", "LAYOUT_MAX_ASPECT", "KNOT_PLACEMENTS",
+           "knot_densities"]
 
 METHODS = ("robust", "paper")
 
@@ -64,6 +65,15 @@ AUTO_MAX_CONTROL_POINTS = 32
 #: up to about 45 m across (docs/algorithm.md, "Local planes and a finer layout on a top-down
 #: scan")
 TOP_DOWN_MAX_CONTROL_POINTS = 48
+
+#: the automatic layout keeps the spacing of its control points along one axis at least
+#: 1 / LAYOUT_MAX_ASPECT of that along the other (on a vehicle's scan): the per-axis cap
+#: would otherwise make a narrow extent's spacing far finer across it than along it (a
+#: forward field of view 76 x 33 m: 2.4 m along, 1.0 m across), and the surface then climbs
+#: the hedges and walls along its sides; a 360 degree street frame (156 x 101 m, 5.4 and
+#: 3.5 m apart) loses one control point across (docs/algorithm.md, "The layout's aspect on a
+#: narrow scan")
+LAYOUT_MAX_ASPECT = 1.5
 
 #: knot placements of the robust fit: uniform spans, or narrower where there are more data
 KNOT_PLACEMENTS = ("uniform", "adaptive")
@@ -163,22 +173,32 @@ class TerrainFit:
 
 def default_control_points(grid: HeightGrid, degree: int = 3,
                            spacing: float | None = None,
-                           most: int = AUTO_MAX_CONTROL_POINTS) -> tuple[int, int]:
+                           most: int = AUTO_MAX_CONTROL_POINTS,
+                           max_aspect: float | None = LAYOUT_MAX_ASPECT) -> tuple[int, int]:
     """A control-point layout from the grid's extent: about one control point every
     ``spacing`` metres (default: 2 cells, at least 1 m), at most ``most`` per axis
     (default :data:`AUTO_MAX_CONTROL_POINTS`; :data:`TOP_DOWN_MAX_CONTROL_POINTS` for a
     top-down scan) unless that leaves them more than :data:`AUTO_MAX_SPACING` apart (then one
     every AUTO_MAX_SPACING metres, at most :data:`AUTO_LIMIT_CONTROL_POINTS`), and at least
-    ``degree + 1``."""
+    ``degree + 1``. With ``max_aspect`` (default :data:`LAYOUT_MAX_ASPECT`; None = each axis
+    on its own, as on a top-down scan) an axis whose spacing that leaves finer than the other
+    axis's over ``max_aspect`` takes fewer control points, spaced the other's over
+    ``max_aspect``."""
     if spacing is None:
         spacing = max(2.0 * grid.cell_size, 1.0)
     x_min, x_max, y_min, y_max = grid.region
+    extents = (x_max - x_min, y_max - y_min)
     out = []
-    for extent, cells in ((x_max - x_min, grid.nx), (y_max - y_min, grid.ny)):
+    for extent, cells in zip(extents, (grid.nx, grid.ny)):
         n = int(round(extent / spacing)) + degree
         most_here = max(int(most), int(math.ceil(extent / AUTO_MAX_SPACING)) + degree)
         n = min(n, most_here, AUTO_LIMIT_CONTROL_POINTS, cells + degree - 1)
         out.append(max(n, degree + 1))
+    if max_aspect is not None:
+        widest = max(extent / (n - degree) for extent, n in zip(extents, out))
+        finest = widest / float(max_aspect)
+        out = [min(n, max(int(round(extent / finest)) + degree, degree + 1))
+               for extent, n in zip(extents, out)]
     return out[0], out[1]
 
 

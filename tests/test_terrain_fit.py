@@ -7,7 +7,8 @@ import pytest
 
 from o3d_terrain.errors import InputError
 from o3d_terrain.grid import FILLED, INVALID, MEASURED, HeightGrid, quantize_points
-from o3d_terrain.terrain import default_control_points, fit_grid, fit_grid_detailed
+from o3d_terrain.terrain import (LAYOUT_MAX_ASPECT, default_control_points, fit_grid,
+                                 fit_grid_detailed)
 
 
 def analytic_grid(fn, *, n=(48, 40), cell=0.5, x_min=0.0, y_min=-10.0, boxes=(), hole=None,
@@ -179,6 +180,24 @@ def test_default_layout_scales_with_extent():
                       np.full((320, 320), MEASURED, np.uint8))
     assert default_control_points(small) == (13, 13)
     assert default_control_points(wide) == (32, 32)
+
+
+def test_default_layout_keeps_the_two_spacings_within_the_aspect_limit():
+    def grid(nx, ny):  # 0.5 m cells
+        return HeightGrid(0.0, 0.0, 0.5, np.zeros((nx, ny)), np.ones((nx, ny), np.int64),
+                          np.full((nx, ny), MEASURED, np.uint8))
+
+    # a forward field of view, 76 x 33 m: 2.62 m apart along x, so at least 1.75 m across
+    narrow = grid(152, 66)
+    assert default_control_points(narrow) == (32, 22)
+    spacing = [76.0 / (32 - 3), 33.0 / (22 - 3)]
+    assert max(spacing) / min(spacing) <= LAYOUT_MAX_ASPECT + 0.05
+    # each axis on its own (a top-down scan): 32 across, 1.06 m apart
+    assert default_control_points(narrow, max_aspect=None) == (32, 32)
+    # a 360 degree street frame, 156 x 101 m: 5.4 and 3.5 m apart at 32 x 32 (ratio 1.55),
+    # one control point fewer across
+    assert default_control_points(grid(312, 202)) == (32, 31)
+    assert default_control_points(grid(312, 202), max_aspect=None) == (32, 32)
 
 
 def test_bad_input_gives_clear_errors():

@@ -76,8 +76,9 @@ class RationalBSplineTerrain(Stage):
         check=_check_control_points,
         help="control points per axis at the end of the growth; null = about one every "
              "2 cells (at least 1 m), at most 32 per axis (48 on a top-down scan: an airborne "
-             "tile with no points near sensor_origin), or one every 6 m (at most 96) where "
-             "that would leave them farther apart; the refit (refine) then takes up to 40 "
+             "tile with no points near sensor_origin), or one every 6 m (at most 192) where "
+             "that would leave them farther apart; on a vehicle's scan one axis's spacing is "
+             "at least 1/1.5 of the other's; the refit (refine) then takes up to 40 "
              "per axis (64 on a vehicle's scan of steep relief or of bench faces); a layout "
              "given here is the refit's too",
     )
@@ -210,7 +211,8 @@ class RationalBSplineTerrain(Stage):
         if control_points is None and top_down:
             # a top-down scan (an airborne tile) is not fitted at a vehicle's frame rate
             control_points = default_control_points(grid, self.degree,
-                                                    most=TOP_DOWN_MAX_CONTROL_POINTS)
+                                                    most=TOP_DOWN_MAX_CONTROL_POINTS,
+                                                    max_aspect=None)
         knots = self.knots
         if knots == "auto":
             knots = "uniform" if top_down else "adaptive"
