@@ -241,7 +241,7 @@ def supported_control_points(surface: TerrainSurface, grid: HeightGrid) -> int:
     spans). A cell within one span counts that span's control points, as its points would; a
     cell across a knot counts the spans on both sides, which its points may not all reach, so
     the count is never below that of the points themselves. The spans come from one search
-    per grid row and column (``np.searchsorted``), not one per point: 0.05 ms instead of
+    per grid row and column (``np.searchsorted``), not one per point: 0.65 ms instead of
     3.5 ms for the 68,000 terrain points of a KITTI frame."""
     x0, y0, _ = surface.origin
     degree = surface.degree
@@ -305,10 +305,10 @@ def refit_layout(surface: TerrainSurface, grid: HeightGrid, most: int,
     """``(layout, (knots_x, knots_y))`` of the refit: per axis the automatic layout of
     ``grid`` (:func:`o3d_terrain.terrain.default_control_points`, its axes each on its own on
     a ``top_down`` scan) with at most ``most`` control points, never fewer than ``surface``
-    has; the surface's own knots when that is its
-    layout, else knots over ``local`` (the region relative to the surface's origin) that are
-    uniform where the surface's are and adaptive to the grid's measured cells where they are
-    not (:func:`o3d_terrain.terrain.knot_densities`)."""
+    has; the surface's own knots when that is its layout, else knots over ``local`` (the
+    region relative to the surface's origin) that are uniform where the surface's are and
+    adaptive to the grid's measured cells where they are not
+    (:func:`o3d_terrain.terrain.knot_densities`)."""
     n0, n1 = surface.control_points.shape
     degree = surface.degree
     auto = default_control_points(grid, degree, most=most,
