@@ -37,6 +37,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from xml.sax.saxutils import escape as xml_escape
 
 import cv2
 import numpy as np
@@ -572,9 +573,9 @@ def write_geotiff(path: str | os.PathLike, values, x_min: float, y_min: float,
         raise InputError(f"{path}: could not write the GeoTIFF ({exc})") from exc
     sidecar = path.with_name(path.name + ".aux.xml")
     if sidecar_wkt:
-        text = sidecar_wkt.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
         sidecar.write_text("<PAMDataset>\n  <SRS dataAxisToSRSAxisMapping=\"1,2\">"
-                           f"{text}</SRS>\n</PAMDataset>\n", encoding="utf-8")
+                           f"{xml_escape(sidecar_wkt)}</SRS>\n</PAMDataset>\n",
+                           encoding="utf-8")
     elif sidecar.exists():  # an older run's coordinate system must not describe this raster
         sidecar.unlink()
     return path
