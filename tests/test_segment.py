@@ -296,6 +296,22 @@ def test_one_control_point_count_serves_both_axes():
     assert fit_terrain(pts, control_points=9, refine=False).control_points.shape == (9, 9)
 
 
+def test_more_control_points_than_the_grid_can_carry_is_an_error_that_gives_the_limit():
+    import re
+
+    pts, _ = scene(6, n=6_000)  # 30 x 20 m: 15 x 10 cells of 2 m
+    with pytest.raises(InputError, match=r"control_points \(500, 500\) are more than the grid "
+                                         r"can carry: its 15 x 10 cells of 2 m allow at most "
+                                         r"\(18, 13\)") as caught:
+        fit_terrain(pts, cell_size=2.0, control_points=500)
+    assert "RationalBSplineTerrain" in str(caught.value)
+    most = tuple(int(v) for v in re.search(r"at most \((\d+), (\d+)\)",
+                                           str(caught.value)).groups())
+    with pytest.raises(InputError, match="more than the grid can carry"):
+        fit_terrain(pts, cell_size=2.0, control_points=(most[0], most[1] + 1))
+    assert fit_terrain(pts, cell_size=2.0, control_points=most).control_points.shape == most
+
+
 def test_stages_write_declared_products_and_attributes():
     pts, truth = scene(3, n=10_000)
     frame = GridQuantize(cell_size=0.5)(pts)
