@@ -9,6 +9,9 @@ from __future__ import annotations
 import difflib
 import functools
 import inspect
+import os
+import sys
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping, Sequence, TypeVar
 
@@ -119,3 +122,19 @@ class TerrainWarning(UserWarning):
     """Input the library can process but that is probably not what the caller meant (a cloud
     whose z axis is not up, coordinates float32 rounded by more than a centimetre); the
     message says what to check and how to fix it."""
+
+
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn(message: str) -> None:
+    """Issue a :class:`TerrainWarning` attributed to the caller's first line outside this
+    package (the call to ``segment_terrain``, a stage or a pipeline in the user's code), not
+    to whichever library line noticed the problem: the location Python prints is then the
+    caller's, and its default filter shows the warning once per line of the caller's code."""
+    frame = sys._getframe(1)
+    level = 2  # warnings.warn's stacklevel of the frame that called warn()
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+        frame = frame.f_back
+        level += 1
+    warnings.warn(message, TerrainWarning, stacklevel=level)

@@ -12,7 +12,6 @@ shared tensors) and attributes are always *added* to a fresh copy.
 from __future__ import annotations
 
 import os
-import warnings
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Mapping
@@ -20,7 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 import open3d as o3d
 
-from .errors import InputError, TerrainWarning
+from .errors import InputError, warn
 
 #: per-point attribute names written by the stages (Open3D style: plural snake_case)
 LABELS = "labels"
@@ -152,12 +151,11 @@ def warn_coarse_float32(positions: np.ndarray) -> None:
     largest = float(np.abs(finite).max())
     step = float(np.spacing(positions.dtype.type(largest)))
     if step > FLOAT32_STEP:
-        warnings.warn(
+        warn(
             f"the cloud's coordinates are {positions.dtype} and reach {largest:,.0f} m, where "
             f"successive {positions.dtype} values are {step:g} m apart: the points were rounded "
             f"that much before they reached the library. Read them as float64, or subtract an "
-            f"offset (e.g. the tile's corner) before converting them to {positions.dtype}",
-            TerrainWarning, stacklevel=3)
+            f"offset (e.g. the tile's corner) before converting them to {positions.dtype}")
 
 
 def as_frame(data: Any) -> Frame:

@@ -124,6 +124,7 @@ def test_a_cloud_in_a_cameras_frame_is_warned_of_with_its_levelling():
         o3d_terrain.segment_terrain(camera)
     text = str(caught[0].message)
     assert "GridQuantize" in text and "level_cloud(cloud, up=(0.0, -1.0, 0.0))" in text
+    assert caught[0].filename == __file__  # the caller's line, not the library's
     levelled, _ = o3d_terrain.level_cloud(camera, (0.0, -1.0, 0.0))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # levelled, or a vehicle's frame: no warning
@@ -145,6 +146,7 @@ def test_a_sensor_mounted_upside_down_is_warned_of_and_levelling_gives_the_groun
                             r"the sensor lie above it and 0% below") as caught:
         o3d_terrain.segment_terrain(flipped)
     assert "level_cloud(cloud, up=(0, 0, -1))" in str(caught[0].message)
+    assert caught[0].filename == __file__
     levelled, _ = o3d_terrain.level_cloud(flipped, (0.0, 0.0, -1.0))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # upright: no warning

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 
-from ..errors import TerrainWarning
+from ..errors import warn
 from ..frame import Frame
 from ..grid import HeightGrid, quantize_points
 from ..ground_layer import default_layer
@@ -73,7 +72,7 @@ class GridQuantize(Stage):
         (:func:`~o3d_terrain.level.up_axis_hint`)."""
         hint = up_axis_hint(positions)
         if hint:
-            warnings.warn(f"{self.type_name}: {hint}", TerrainWarning, stacklevel=2)
+            warn(f"{self.type_name}: {hint}")
         return quantize_points(
             positions, cell_size=self.cell_size,
             region=self.region if region is None else region,

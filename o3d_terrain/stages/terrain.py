@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-import warnings
 
 import numpy as np
 
-from ..errors import TerrainWarning
+from ..errors import warn
 from ..faces import FACE_RUN, face_limit, face_run, planar_cells
 from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
 from ..grid import HeightGrid, with_cell_planes, without_low_returns
@@ -207,7 +206,7 @@ class RationalBSplineTerrain(Stage):
         if positions is not None:
             hint = upside_down_hint(positions, self.sensor_origin)
             if hint:
-                warnings.warn(f"{self.type_name}: {hint}", TerrainWarning, stacklevel=2)
+                warn(f"{self.type_name}: {hint}")
         if control_points is None and top_down:
             # a top-down scan (an airborne tile) is not fitted at a vehicle's frame rate
             control_points = default_control_points(grid, self.degree,

@@ -41,7 +41,7 @@ from .terrain import GridRelief, Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
     "OBSTACLE", "OBSTACLE_SHAPES", "OUTLIER", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN",
-    "Camera", "Hill", "Obstacle", "Plane", "Ramp", "Ridge", "Roughness", "Scene", "StereoPair",
+    "Camera", "GridRelief", "Hill", "Obstacle", "Plane", "Ramp", "Ridge", "Roughness", "Scene", "StereoPair",
     "SyntheticCloud", "TerrainError", "Valley", "cast", "default_obstacles", "make_scene",
     "render_stereo_pair", "rotation_matrix", "sample_airborne", "sample_lidar", "sample_sequence",
     "sample_solid_state", "sample_stereo",
