@@ -35,11 +35,13 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     run = sub.add_parser("run", help="run a pipeline file")
-    run.add_argument("pipeline", help="pipeline YAML file")
-    run.add_argument("--input", "-i", action="append", default=[], metavar="PATH",
+    run.add_argument("pipeline", nargs="?", help="pipeline YAML file")
+    run.set_defaults(usage_error=run.error)  # argparse's usage and exit 2, for _pipeline_argument
+    run.add_argument("--input", "-i", action="extend", nargs="+", default=[], metavar="PATH",
                      help="point cloud file(s) or folder(s) to run on instead of the file's "
-                          "source; repeat for a batch (each input gets its own sub-folder, named "
-                          "after the file; -2, -3, ... for repeated names)")
+                          "source; several (-i a.ply b.ply, a shell glob, or -i repeated) make a "
+                          "batch: each input gets its own sub-folder, named after the file; -2, "
+                          "-3, ... for repeated names")
     run.add_argument("--output", "-o", metavar="DIR", help="output folder (default: the file's "
                      "output_dir, else ./out)")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
@@ -169,7 +171,20 @@ def _output_folders(inputs: Sequence[Path]) -> list[str]:
     return folders
 
 
+def _pipeline_argument(args: argparse.Namespace) -> None:
+    """``run -i a.ply b.ply pipeline.yaml``: the inputs' list took the pipeline file (the
+    option's values run to the next option); the one YAML file among them is the pipeline."""
+    if args.pipeline is not None:
+        return
+    files = [item for item in args.input if Path(item).suffix.lower() in (".yaml", ".yml")]
+    if len(files) != 1:
+        args.usage_error("the following arguments are required: pipeline")
+    args.pipeline = files[0]
+    args.input = [item for item in args.input if item != files[0]]
+
+
 def _run(args: argparse.Namespace, verbose: bool) -> int:
+    _pipeline_argument(args)
     inputs = _expand_inputs(args.input)
     if len(inputs) <= 1:
         pipeline = load_pipeline(args.pipeline, overrides=args.overrides,

@@ -103,13 +103,17 @@ class RunResult:
 
 
 def _located(call, location: str):
-    """Run ``call``; prefix a failure's message with where in the pipeline it happened."""
+    """Run ``call``; prefix a failure's message with where in the pipeline it happened
+    (``location`` ends with the stage's name, which a stage's own message starts with: it
+    is said once)."""
     try:
         return call()
     except ConfigError:
         raise
     except O3DTerrainError as exc:
-        raise type(exc)(f"{location}: {exc}") from exc
+        text = str(exc)
+        name = location.rsplit(" ", 1)[-1] + ": "
+        raise type(exc)(f"{location}: {text.removeprefix(name)}") from exc
     except KeyError as exc:  # a missing product or attribute
         raise StageError(f"{location}: {exc.args[0] if exc.args else exc}") from exc
 

@@ -58,6 +58,26 @@ def test_batch_keeps_going_past_a_bad_input(tmp_path, small_cloud, capsys):
     assert (tmp_path / "out" / "c" / "height.png").exists()
 
 
+def test_one_input_option_takes_several_paths_and_the_pipeline_after_them(tmp_path, small_cloud,
+                                                                          capsys):
+    # a shell glob: -i scans/*.npy, the pipeline file before or after the inputs
+    np.save(tmp_path / "a.npy", small_cloud)
+    np.save(tmp_path / "c.npy", small_cloud)
+    (tmp_path / "b.npy").write_bytes(b"garbage")
+    path = _pipeline(tmp_path, tmp_path / "a.npy")
+    clouds = [str(tmp_path / name) for name in ("a.npy", "b.npy", "c.npy")]
+    assert main(["run", "-o", str(tmp_path / "out"), "-i", *clouds, str(path)]) == 1
+    captured = capsys.readouterr()
+    assert "2 of 3 inputs done" in captured.out
+    # the stage's name once: where it failed, then what went wrong there
+    assert f"{clouds[1]}: FAILED: source ReadCloud: {clouds[1]}:" in captured.err
+    assert (tmp_path / "out" / "c" / "height.png").exists()
+    with pytest.raises(SystemExit) as info:
+        main(["run", "-i", *clouds])
+    assert info.value.code == 2
+    assert "the following arguments are required: pipeline" in capsys.readouterr().err
+
+
 def test_batch_inputs_of_one_name_keep_their_own_outputs(tmp_path, small_cloud, capsys):
     for folder in ("drive1", "drive2"):
         (tmp_path / folder).mkdir()
