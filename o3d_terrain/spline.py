@@ -178,7 +178,7 @@ class TerrainSurface:
         return bool(np.ptp(self.weights) > 0)
 
     def __repr__(self) -> str:
-        r = tuple(round(v, 3) for v in self.region)
+        r = tuple(round(float(v), 3) for v in self.region)
         return (f"TerrainSurface(degree={self.degree}, control_points={self.shape}, region={r}, "
                 f"rational={self.is_rational})")
 

@@ -291,6 +291,7 @@ def test_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(s(x, y), t(x, y))
     assert t.origin == s.origin and t.degree == s.degree
     assert t.cell_size is None
+    assert repr(t) == repr(s)
     np.save(tmp_path / "other.npy", np.zeros(3))
     with pytest.raises(InputError, match="TerrainSurface"):
         TerrainSurface.load(tmp_path / "other.npy")
