@@ -20,7 +20,7 @@ from .grid import region_of
 from .ground_layer import default_layer
 from .locate import locate_sensor
 from .noise import RangeNoise
-from .segment import (AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, FOOT_LINES,
+from .segment import (AUTO_CENTRED_FACTOR, AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, FOOT_LINES,
                       TerrainLabel, sensor_in_cloud)
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
@@ -195,11 +195,15 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
 
 def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *,
                    factor: float = AUTO_THRESHOLD_FACTOR, low: float = AUTO_THRESHOLD_RANGE[0],
-                   high: float = AUTO_THRESHOLD_RANGE[1]) -> float:
+                   high: float = AUTO_THRESHOLD_RANGE[1],
+                   centred_factor: float = AUTO_CENTRED_FACTOR) -> float:
     """Obstacle threshold from the data: ``factor`` times the robust spread of the points
-    at or below the surface (terrain noise; obstacles never lie below it), in [low, high] m
+    at or below the surface (terrain noise; obstacles never lie below it), in [low, high] m;
+    where the ground's centre lies above the surface, at least that centre plus
+    ``centred_factor`` times the ground's spread below it
     (:func:`o3d_terrain.segment.auto_threshold` of the heights above the surface)."""
-    return _auto_threshold(surface.heights_above(positions), factor=factor, low=low, high=high)
+    return _auto_threshold(surface.heights_above(positions), factor=factor, low=low, high=high,
+                           centred_factor=centred_factor)
 
 
 @checked_keywords(_KEYWORD_HINTS)
@@ -297,7 +301,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     ``along_normal`` (default) both bounds are distances along the surface normal, i.e.
     vertically sqrt(1 + |grad S|^2) times larger on slopes (at most twice, a 60° face).
     ``distance_threshold`` None = from the data: 3.5 times the robust noise of the points
-    just below the surface, clipped to [0.13, 0.5] m (:func:`auto_threshold`), widened with
+    just below the surface, at least the ground's centre plus 2.5 times its noise where the
+    surface lies under that centre, clipped to [0.13, 0.5] m (:func:`auto_threshold`), widened with
     ``misfit_threshold`` where the surface's local misfit to the ground exceeds that noise
     (:mod:`o3d_terrain.misfit`, at most 1.5 m, both sides). ``range_coefficient`` None = from
     the data with the automatic threshold: it grows with r^2 only where the noise below the

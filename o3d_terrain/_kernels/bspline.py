@@ -1353,6 +1353,33 @@ def grid_rational(spans_x, basis_x, spans_y, basis_y, numerator, denominator, ma
 
 
 @numba.njit(cache=True)
+def ground_centre_spread(heights, step, low, top):
+    """(centre, spread, count) over every ``step``-th height h with low < h <= top: the
+    median of those h, and the median of centre - h over those at or below it (the ground's
+    noise measured from its own centre, not from the surface:
+    :func:`o3d_terrain.segment.auto_threshold`); NaN, NaN, 0 when there is none. The same
+    medians numpy.median gives."""
+    n = (heights.shape[0] + step - 1) // step
+    gathered = np.empty(n)
+    count = 0
+    for k in range(n):
+        h = heights[k * step]
+        if h > low and h <= top:
+            gathered[count] = h
+            count += 1
+    if count == 0:
+        return np.nan, np.nan, 0
+    centre = np.median(gathered[:count])
+    depths = np.empty(count)
+    below = 0
+    for k in range(count):
+        if gathered[k] <= centre:
+            depths[below] = centre - gathered[k]
+            below += 1
+    return centre, np.median(depths[:below]), count
+
+
+@numba.njit(cache=True)
 def below_surface_median(heights, step, high):
     """(median of -h, count) over every ``step``-th height h with -high < h <= 0 (the terrain
     noise below the surface, :func:`o3d_terrain.segment.auto_threshold`); median NaN when

@@ -343,8 +343,9 @@ class Segmenter(Stage):
                               help="height above the terrain that makes a point an obstacle; "
                                    "null (default, as segment_terrain) = from the data: 3.5 "
                                    "times the robust noise of the points below the surface, "
-                                   "in [0.13, 0.5] m, widened where the surface misfits "
-                                   "(misfit_threshold)")
+                                   "at least the ground's centre plus 2.5 times its noise "
+                                   "where the surface lies under that centre, in [0.13, 0.5] "
+                                   "m, widened where the surface misfits (misfit_threshold)")
     below_threshold: float = option(0.5, unit="m", rule=POSITIVE,
                                     help="depth below the terrain that makes a point noise")
     range_coefficient: float = option(
