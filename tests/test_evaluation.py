@@ -606,6 +606,26 @@ def test_kitti_low_moves_points_down_and_leaves_them_unscored(tmp_path, monkeypa
                        "unknown share of low returns '5'")
 
 
+def test_kitti_noise_adds_seeded_gaussian_noise_to_z_only(tmp_path, monkeypatch):
+    run_all = _run_all()
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(-10, 10, (20_000, 3))
+    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(20_000) % 3 == 0,
+                             scored=np.arange(20_000) % 5 != 0)
+    for name, sigma in run_all.KITTI_NOISE.items():
+        noisy = run_all.noise_frame(frame, sigma)
+        added = noisy.positions[:, 2] - positions[:, 2]
+        assert abs(added.std() - sigma) < 0.02 * sigma + 1e-12, name
+        assert np.array_equal(noisy.positions[:, :2], positions[:, :2])
+        assert np.array_equal(noisy.scored, frame.scored)
+        assert np.array_equal(noisy.is_ground, frame.is_ground)
+    assert np.array_equal(run_all.noise_frame(frame, 0.05).positions,
+                          run_all.noise_frame(frame, 0.05).positions)  # seeded
+
+    _check_as_recorded(run_all, tmp_path, monkeypatch, "kitti-noise:0", "kitti-noise:4",
+                       "unknown noise '4'")
+
+
 @pytest.mark.parametrize("prefix, title, header, f1s, row", [
     ("kitti-lines", "SemanticKITTI frames seen by a sparser lidar",
      "| method | 64 lines (as recorded) | 32 lines | 16 lines |",
@@ -616,7 +636,10 @@ def test_kitti_low_moves_points_down_and_leaves_them_unscored(tmp_path, monkeypa
     ("kitti-low", "SemanticKITTI frames with returns from below the ground",
      "| method | 0 % (as recorded) | 0.5 % | 1 % | 2 % |",
      {"0": 0.98, "0.5": 0.97, "1": 0.96, "2": 0.9}, "98.0 | 97.0 | 96.0 | 90.0"),
-], ids=["lines", "fov", "low"])
+    ("kitti-noise", "SemanticKITTI frames with a noisier sensor",
+     "| method | as recorded | σ 3 cm | σ 5 cm | σ 8 cm |",
+     {"0": 0.98, "3": 0.97, "5": 0.96, "8": 0.9}, "98.0 | 97.0 | 96.0 | 90.0"),
+], ids=["lines", "fov", "low", "noise"])
 def test_kitti_variant_sections_render_only_when_run(prefix, title, header, f1s, row):
     run_all = _run_all()
     results = _no_results()
