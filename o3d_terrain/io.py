@@ -31,6 +31,7 @@ file's coordinate system). Other formats carry no unit and are read as they are.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
@@ -156,13 +157,15 @@ def _laspy(path: Path, doing: str):
     return laspy
 
 
-def open_las(path: str | os.PathLike):
-    """A ``laspy.LasData`` of a LAS/LAZ file, with clear errors for a missing laspy or LAZ
-    backend, a corrupt file and a file without points."""
-    path = Path(path)
+@contextlib.contextmanager
+def _reading_las(path: Path):
+    """laspy for reading ``path`` in the ``with`` block, whose failures become an
+    :class:`InputError`: a missing LAZ backend names the extra that installs it, anything else
+    (laspy raises many types on corrupt or unsupported files) says the file could not be read
+    as LAS/LAZ."""
     laspy = _laspy(path, "reading")
     try:
-        las = laspy.read(str(path))
+        yield laspy
     except laspy.errors.LaspyException as exc:
         if "backend" in str(exc).lower() or "laz" in str(exc).lower():
             raise InputError(
@@ -170,8 +173,16 @@ def open_las(path: str | os.PathLike):
                 "pip install 'o3d_terrain[las]' (laspy[lazrs])"
             ) from exc
         raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
-    except Exception as exc:  # laspy raises many types on corrupt or unsupported files
+    except Exception as exc:
         raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+
+
+def open_las(path: str | os.PathLike):
+    """A ``laspy.LasData`` of a LAS/LAZ file, with clear errors for a missing laspy or LAZ
+    backend, a corrupt file and a file without points."""
+    path = Path(path)
+    with _reading_las(path) as laspy:
+        las = laspy.read(str(path))
     if len(las.points) == 0:
         raise InputError(f"{path}: contains no points")
     return las
@@ -209,11 +220,7 @@ def las_units(las) -> LasUnits:
 
 def _header_units(keys: "GeoKeys | None", wkt: str | None) -> LasUnits:
     """:func:`las_units` of the records :func:`las_geokeys` read."""
-    found = None
-    if keys is not None:
-        d = keys.directory
-        found = {d[i]: d[i + 3] for i in range(4, len(d) - 3, 4) if d[i + 1] == 0}
-    return _units(found, [wkt] if wkt else [])
+    return _units(None if keys is None else keys.shorts(), [wkt] if wkt else [])
 
 
 def _units(keys: dict | None, wkts: list[str]) -> LasUnits:
@@ -446,12 +453,22 @@ class GeoKeys:
         """A projected coordinate system by its EPSG code (ProjectedCSTypeGeoKey)."""
         return cls((1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, int(code)))
 
+    def entries(self) -> list[tuple[int, ...]]:
+        """The directory's keys as stored: (key id, location, count, value or offset) each;
+        location 0 holds the short value in the entry itself."""
+        d = self.directory
+        return [tuple(d[i:i + 4]) for i in range(4, 4 + 4 * d[3], 4)]
+
+    def shorts(self) -> dict[int, int]:
+        """Key id -> value of the keys whose value is a short stored in the directory."""
+        return {key: value for key, location, _, value in self.entries() if location == 0}
+
     def with_key(self, key: int, value: int) -> "GeoKeys":
         """The same keys with ``key`` set to the short ``value`` (kept in ascending order)."""
-        d = list(self.directory)
-        keys = [tuple(d[i:i + 4]) for i in range(4, 4 + 4 * d[3], 4)]
         # (key 0 is no GeoKey: a few LAS writers leave such an empty entry)
-        keys = sorted([k for k in keys if k[0] not in (0, key)] + [(key, 0, 1, int(value))])
+        keys = sorted([k for k in self.entries() if k[0] not in (0, key)]
+                      + [(key, 0, 1, int(value))])
+        d = self.directory
         return GeoKeys((d[0], d[1], d[2], len(keys), *[v for k in keys for v in k]),
                        self.doubles, self.ascii)
 
@@ -475,14 +492,10 @@ def las_geokeys(source: "LasSource | str | os.PathLike") -> tuple[GeoKeys | None
     """The coordinate system of a LAS/LAZ file, read from its header alone: its GeoTIFF keys
     (the LASF_Projection records 34735-34737) when it has them, and its WKT (record 2112)
     when it has one; (None, None) for a file that declares neither."""
-    path = source.path if isinstance(source, LasSource) else Path(source)
-    laspy = _laspy(path, "reading")
-    _check_readable(Path(path))
-    try:
-        with laspy.open(str(path)) as reader:
-            header = reader.header
-    except Exception as exc:  # laspy raises many types on corrupt or unsupported files
-        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+    path = Path(source.path if isinstance(source, LasSource) else source)
+    _check_readable(path)
+    with _reading_las(path) as laspy, laspy.open(str(path)) as reader:
+        header = reader.header
     records = {}
     for vlr in list(header.vlrs) + list(getattr(header, "evlrs", None) or []):
         if getattr(vlr, "user_id", "").rstrip("\0") == "LASF_Projection":

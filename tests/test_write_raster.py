@@ -153,6 +153,10 @@ def test_a_tile_with_a_wkt_only_gets_it_beside_the_raster(tmp_path):
 def test_geokeys_stay_sorted_and_unique():
     keys = GeoKeys((1, 1, 0, 3, 0, 0, 0, 0, 3072, 0, 1, 2154, 1025, 0, 1, 2))
     assert keys.with_key(1025, 1).directory == (1, 1, 0, 2, 1025, 0, 1, 1, 3072, 0, 1, 2154)
+    # a key whose value lies in the doubles (location 34736) is no short
+    mixed = GeoKeys((1, 1, 0, 2, 3072, 0, 1, 32633, 4099, 34736, 1, 0), (0.3048,))
+    assert mixed.shorts() == {3072: 32633}
+    assert mixed.entries()[1] == (4099, 34736, 1, 0)
 
 
 def test_what_does_not_fit_is_rejected_with_the_fix(tmp_path, hill_cloud):
@@ -173,6 +177,9 @@ def test_what_does_not_fit_is_rejected_with_the_fix(tmp_path, hill_cloud):
         write_geotiff(tmp_path / "x.tif", np.zeros(4), 0.0, 0.0, 1.0)
     with pytest.raises(InputError, match="no such file"):
         write_terrain_raster(tmp_path / "dtm.tif", surface, source=tmp_path / "missing.laz")
+    (tmp_path / "corrupt.las").write_bytes(b"LASF" + bytes(200))
+    with pytest.raises(InputError, match="corrupt.las: could not be read as LAS/LAZ"):
+        write_terrain_raster(tmp_path / "dtm.tif", surface, source=tmp_path / "corrupt.las")
     assert not (tmp_path / "dtm.tif").exists()  # nothing half-written
 
 
