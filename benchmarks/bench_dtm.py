@@ -35,13 +35,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from bench_dem_sites import HALF, scan, site_scene, sites  # noqa: E402
 from scipy.interpolate import LinearNDInterpolator  # noqa: E402
 
 import o3d_terrain  # noqa: E402
-from bench_dem_sites import HALF, scan, site_scene, sites  # noqa: E402
 from o3d_terrain.evaluation.datasets import data_root  # noqa: E402
 from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
 from o3d_terrain.evaluation.terrain import read_raster  # noqa: E402
+from o3d_terrain.grid import quantize_points  # noqa: E402
 from o3d_terrain.raster import terrain_raster  # noqa: E402
 
 MARGIN = 3.0  # cells this close to the site's edge are not scored (m)
@@ -68,12 +69,9 @@ def site_rasters(cloud, methods: dict) -> tuple[dict, np.ndarray, np.ndarray, np
         rasters[f"TIN of {name}'s ground"] = tin(p[np.asarray(method(p), bool)], x, y)
     rasters["TIN of the true ground"] = tin(p[truth_ground], x, y)
     truth = cloud.terrain_height(x, y)
-    hit = np.zeros(values.shape, bool)
-    g = p[truth_ground]
-    cx = np.floor(g[:, 0] - x_min).astype(np.int64)
-    cy = np.floor(g[:, 1] - y_min).astype(np.int64)
-    ok = (cx >= 0) & (cx < values.shape[0]) & (cy >= 0) & (cy < values.shape[1])
-    hit[cx[ok], cy[ok]] = True
+    # the raster's cells that hold a true ground return (the grid's cells of those points)
+    region = (x_min, x_min + values.shape[0], y_min, y_min + values.shape[1])
+    hit = quantize_points(p[truth_ground], cell_size=1.0, region=region).count > 0
     return rasters, truth, ~hit, np.stack([x, y])
 
 
