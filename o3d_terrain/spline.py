@@ -170,15 +170,15 @@ class TerrainSurface:
     def region(self) -> tuple[float, float, float, float]:
         """(x_min, x_max, y_min, y_max) in world coordinates."""
         x0, y0, _ = self.origin
-        return (x0 + self.knots_x[0], x0 + self.knots_x[-1], y0 + self.knots_y[0],
-                y0 + self.knots_y[-1])
+        return (float(x0 + self.knots_x[0]), float(x0 + self.knots_x[-1]),
+                float(y0 + self.knots_y[0]), float(y0 + self.knots_y[-1]))
 
     @property
     def is_rational(self) -> bool:
         return bool(np.ptp(self.weights) > 0)
 
     def __repr__(self) -> str:
-        r = tuple(round(float(v), 3) for v in self.region)
+        r = tuple(round(v, 3) for v in self.region)
         return (f"TerrainSurface(degree={self.degree}, control_points={self.shape}, region={r}, "
                 f"rational={self.is_rational})")
 

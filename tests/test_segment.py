@@ -327,6 +327,7 @@ def test_one_control_point_count_serves_both_axes():
     assert surface.control_points.shape == (12, 12)
     assert repr(surface).startswith("TerrainSurface(degree=3, control_points=(12, 12), "
                                     "region=(0.")  # plain numbers, not np.float64(...)
+    assert all(type(v) is float for v in surface.region)
     same, same_inliers = segment_terrain(pts, control_points=[12, 12], refine=False)
     np.testing.assert_array_equal(inliers, same_inliers)
     assert fit_terrain(pts, control_points=9, refine=False).control_points.shape == (9, 9)
