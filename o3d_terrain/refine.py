@@ -158,9 +158,11 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
     # about the cells' planes) hardly see them, for 2 ms less per KITTI frame (docs/algorithm.md,
     # "Refit on the terrain points"); without the line-of-sight test, whose points the refit
     # then left to the penalty and which cost a pitched solid-state frame (docs/algorithm.md,
-    # "Ground the sensor could not see")
+    # "Ground the sensor could not see"); the threshold from the noise below the surface
+    # alone, whose precision the refit's points need (docs/algorithm.md, "The threshold on a
+    # noisy ground")
     labels, _ = segment_points(surface, p, threshold=None, sensor_origin=sensor_origin,
-                               foot_height=0.0, line_of_sight=False)
+                               foot_height=0.0, line_of_sight=False, centred_threshold=False)
     terrain = np.compress(labels == TerrainLabel.TERRAIN, p, axis=0)  # ~3x faster than p[mask]
     n0, n1 = surface.control_points.shape
     if len(terrain) == 0:

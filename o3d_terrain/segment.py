@@ -220,8 +220,8 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
     below it), clipped to [low, high] m; where the median c of the heights within that
     threshold and above -high (the ground's centre) lies above the surface, at least c +
     ``centred_factor`` times the robust spread of those heights below c (1.4826 x median of
-    c - h), clipped the same way. Uses every k-th point, k = max(1, N // 50,000); for c and its
-    spread k = max(1, N // :data:`CENTRE_SAMPLE`)."""
+    c - h), clipped the same way (``centred_factor`` 0: not looked for). Uses every k-th point,
+    k = max(1, N // 50,000); for c and its spread k = max(1, N // :data:`CENTRE_SAMPLE`)."""
     step = max(1, len(heights) // 50_000)
     heights = np.ascontiguousarray(heights, dtype=np.float64)
     median, count = _bs.below_surface_median(heights, step, float(high))
@@ -229,6 +229,8 @@ def auto_threshold(heights: np.ndarray, *, factor: float = AUTO_THRESHOLD_FACTOR
         return low
     noise = 1.4826 * float(median)
     threshold = float(np.clip(factor * noise, low, high))
+    if centred_factor <= 0:
+        return threshold
     # the centre and its spread from every k-th of about CENTRE_SAMPLE heights
     centre, spread, count = _bs.ground_centre_spread(
         heights, max(1, len(heights) // CENTRE_SAMPLE), -float(high), threshold)
@@ -399,7 +401,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                    foot_cell: float = FOOT_CELL, foot_lines: float = FOOT_LINES,
                    foot_behind: float = FOOT_BEHIND,
                    foot_gap: float = FOOT_GAP,
-                   line_of_sight: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                   line_of_sight: bool = True,
+                   centred_threshold: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -443,6 +446,12 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         sensor that the surface would hide from it become OBSTACLE (:func:`out_of_sight`: an
         object beyond a crest or a hill whose ground the sensor cannot see, which the
         surface then runs through).
+    centred_threshold: with ``threshold`` None, the automatic threshold is at least the
+        ground's centre plus :data:`AUTO_CENTRED_FACTOR` noise scales where that centre lies
+        above the surface (:func:`auto_threshold`); False = from the noise below the surface
+        alone (the refit's labels: they choose the points a surface is fitted to, where low
+        clutter taken as terrain costs more than noisy ground left out; docs/algorithm.md,
+        "The threshold on a noisy ground").
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -462,6 +471,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         raise InputError("segment_points: " + "; ".join(problems))
     p = _positions(positions)
     h = heights_above_terrain(surface, p)
+    centred_factor = AUTO_CENTRED_FACTOR if centred_threshold else 0.0
     local = None
     automatic_range = range_coefficient is None
     measured_range = automatic_range and threshold is None  # the data's range growth is known
@@ -473,7 +483,7 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     line_spacing = functools.cache(lambda: scan_line_spacing(p, sensor_origin))
 
     if threshold is None:
-        threshold = auto_threshold(h)
+        threshold = auto_threshold(h, centred_factor=centred_factor)
         if automatic_range:
             range_coefficient = auto_range_coefficient(p, h, threshold, sensor_origin,
                                                        line_spacing=line_spacing)
@@ -521,7 +531,8 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         # asked of the data also when the caller set the threshold or its range term
         behind = 0.0
         if foot_behind > 0 and spacing > 0 and range_coefficient == 0 and (
-                measured_range or auto_range_coefficient(p, h, auto_threshold(h),
+                measured_range or auto_range_coefficient(p, h, auto_threshold(
+                    h, centred_factor=centred_factor),
                                                          sensor_origin,
                                                          line_spacing=spacing) == 0):
             behind = foot_behind

@@ -227,6 +227,29 @@ def test_automatic_threshold_keeps_a_noisy_ground(layout):
     assert auto_threshold(heights) > 3.5 * below + 0.005
 
 
+def test_the_refits_labels_keep_the_threshold_from_below_the_surface(monkeypatch):
+    # the centred threshold keeps more of a noisy ground in the final labels; the refit's
+    # labels, which pick the points its surface is fitted to, go without it
+    import o3d_terrain.refine as refine
+
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-30, 30, (40_000, 2))
+    pts = np.c_[xy, rng.normal(0, 0.05, 40_000)]
+    surface = fit_terrain(pts, refine=False)
+    centred, _ = segment_points(surface, pts, threshold=None)
+    below, _ = segment_points(surface, pts, threshold=None, centred_threshold=False)
+    assert (centred == TerrainLabel.TERRAIN).sum() > (below == TerrainLabel.TERRAIN).sum()
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("centred_threshold", True))
+        return segment_points(*args, **kwargs)
+
+    monkeypatch.setattr(refine, "segment_points", spy)
+    segment_terrain(pts)
+    assert seen and not any(seen)
+
+
 def test_ground_centre_and_spread_are_numpys_medians():
     rng = np.random.default_rng(4)
     heights = np.r_[rng.normal(0.03, 0.05, 5_000), rng.uniform(0.3, 2.0, 500), [np.nan, -3.0]]
