@@ -24,6 +24,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from o3d_terrain.evaluation import datasets as ds  # noqa: E402
+from o3d_terrain.evaluation.metrics import segmentation_counts  # noqa: E402
 from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
 
 
@@ -57,13 +58,9 @@ def grass_layer(frame: ds.LabelledFrame, height: float, extinction: float, seed:
 
 def score(frame: ds.LabelledFrame, positions: np.ndarray, method) -> tuple[float, float]:
     """(ground F1 %, ground recall %) of ``method`` on ``positions`` with the frame's truth."""
-    pred = np.asarray(method(positions), bool)[frame.scored]
-    truth = frame.is_ground[frame.scored]
-    tp = int((pred & truth).sum())
-    precision = tp / max(int(pred.sum()), 1)
-    recall = tp / max(int(truth.sum()), 1)
-    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
-    return 100 * f1, 100 * recall
+    counts = segmentation_counts(np.asarray(method(positions), bool), frame.is_ground,
+                                 scored=frame.scored)
+    return 100 * counts.f1, 100 * counts.recall
 
 
 def main() -> None:

@@ -22,6 +22,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
+from o3d_terrain.evaluation.metrics import segmentation_counts
 from o3d_terrain.evaluation.segmentation import resolve_method
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_lidar
 
@@ -52,15 +53,10 @@ class Frame:
 def score(frame: Frame, positions: np.ndarray, method) -> tuple[float, float, float | None]:
     """(ground F1 %, ground recall %, obstacle recall % of the frame's ``tall`` points, None
     for a frame without them) of ``method`` on ``positions``."""
-    ground = np.asarray(method(positions), bool)
-    pred = ground[frame.scored]
-    truth = frame.is_ground[frame.scored]
-    tp = int((pred & truth).sum())
-    precision = tp / max(int(pred.sum()), 1)
-    recall = tp / max(int(truth.sum()), 1)
-    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
-    obstacle = 100 * float(np.mean(~ground[frame.tall])) if frame.tall.any() else None
-    return 100 * f1, 100 * recall, obstacle
+    counts = segmentation_counts(np.asarray(method(positions), bool), frame.is_ground,
+                                 scored=frame.scored, obstacle=frame.tall)
+    obstacle = 100 * counts.obstacle_recall if counts.obstacle_points else None
+    return 100 * counts.f1, 100 * counts.recall, obstacle
 
 
 def main() -> None:
