@@ -15,11 +15,12 @@ Data: the real scans in ../shared/data (or $O3D_TERRAIN_DATA) and the synthetic 
 32- or 16-line lidar sees; ``kitti-fov`` the same frames cropped to a forward field of view
 (KITTI_FOVS), a camera's or a solid-state lidar's; ``kitti-low`` the same frames with some
 points moved below the ground (KITTI_LOW); ``kitti-noise`` the same frames with Gaussian
-noise added to every z (KITTI_NOISE), a noisier sensor's or rough ground's; ``synthetic-solid`` the synthetic scenes
-seen by a forward-looking solid-state lidar with a non-repetitive scan
-(``synthetic.sample_solid_state``); ``dem-sites`` the 8 sites of the real raster
-``dem_1m/dem.tif`` of benchmarks/bench_dem_sites.py (DEM_SENSORS); ``pit`` an open pit's
-benches seen from its floor and from a berm (benchmarks/bench_pit.py).
+noise added to every z (KITTI_NOISE), a noisier sensor's or rough ground's (the families:
+KITTI_FAMILIES); ``synthetic-solid`` the synthetic scenes seen by a forward-looking
+solid-state lidar with a non-repetitive scan (``synthetic.sample_solid_state``);
+``dem-sites`` the 8 sites of the real raster ``dem_1m/dem.tif`` of
+benchmarks/bench_dem_sites.py (DEM_SENSORS); ``pit`` an open pit's benches seen from its
+floor and from a berm (benchmarks/bench_pit.py).
 """
 
 from __future__ import annotations
@@ -82,17 +83,9 @@ def load_frames(spec: str, seed: int = 0):
         else:
             items = [ds.read_las_frame(root / "las" / "las_with_several_extra_byte_bloc.laz")]
         return ds.iter_frames(items)
-    if spec.startswith("kitti-tilt:"):
-        return _kitti_variant(root, spec, KITTI_TILTS, "tilt",
-                              lambda f, tilt: tilt_frame(f, *tilt))
-    if spec.startswith("kitti-lines:"):
-        return _kitti_variant(root, spec, KITTI_LINES, "line count", line_frame)
-    if spec.startswith("kitti-fov:"):
-        return _kitti_variant(root, spec, KITTI_FOVS, "field of view", fov_frame)
-    if spec.startswith("kitti-low:"):
-        return _kitti_variant(root, spec, KITTI_LOW, "share of low returns", low_frame)
-    if spec.startswith("kitti-noise:"):
-        return _kitti_variant(root, spec, KITTI_NOISE, "noise", noise_frame)
+    family = spec.split(":", 1)[0]
+    if ":" in spec and family in KITTI_FAMILIES:
+        return _kitti_variant(root, spec, *KITTI_FAMILIES[family])
     if spec == "synthetic":
         return ds.iter_frames(ds.synthetic_frames(list(ds.synthetic_scene_names()), seed=seed))
     if spec == "synthetic-solid":  # a forward-looking lidar with a non-repetitive scan
@@ -112,9 +105,9 @@ def load_frames(spec: str, seed: int = 0):
 
 
 def _kitti_variant(root, spec: str, variants: dict, what: str, make):
-    """The SemanticKITTI frames of a ``family:variant`` data set (kitti-tilt, kitti-lines,
-    kitti-fov, kitti-low, kitti-noise):
-    ``make(frame, variants[variant])`` of each frame, and the frames that failed to load."""
+    """The SemanticKITTI frames of a ``family:variant`` data set (a family of
+    :data:`KITTI_FAMILIES`): ``make(frame, variants[variant])`` of each frame, and the
+    frames that failed to load."""
     from o3d_terrain.evaluation import datasets as ds
 
     if root is None:
@@ -253,6 +246,17 @@ def noise_frame(frame, sigma: float, seed: int = 0):
     p = frame.positions.copy()
     p[:, 2] += np.random.default_rng(seed).normal(0.0, float(sigma), len(p))
     return dataclasses.replace(frame, positions=p)
+
+
+#: the data-set families of SemanticKITTI variants: family -> (its variants, what a variant
+#: is called in an error, make(frame, variants[variant])); each variant is a task of its own
+KITTI_FAMILIES = {
+    "kitti-tilt": (KITTI_TILTS, "tilt", lambda frame, tilt: tilt_frame(frame, *tilt)),
+    "kitti-lines": (KITTI_LINES, "line count", line_frame),
+    "kitti-fov": (KITTI_FOVS, "field of view", fov_frame),
+    "kitti-low": (KITTI_LOW, "share of low returns", low_frame),
+    "kitti-noise": (KITTI_NOISE, "noise", noise_frame),
+}
 
 
 def _standard_frame(spec: str, seed: int):
@@ -495,9 +499,10 @@ def collect(args) -> dict:
                "segment": {}, "stages": {}, "terrain": None}
     methods = [OURS, *PEER_NAMES]
     plan = [("kitti", True), ("kitti-tilt", False), ("kitti-lines", False),
-            ("kitti-fov", False), ("kitti-low", False), ("kitti-noise", False), ("las", False),
-            ("synthetic", False), ("synthetic-solid", False), ("dem-sites", False),
-            ("pit", False), ("lidar120k", True), ("stereo300k", True), ("paper34x22", False), ("las700k", True)]
+            ("kitti-fov", False), ("kitti-low", False), ("kitti-noise", False),
+            ("las", False), ("synthetic", False), ("synthetic-solid", False),
+            ("dem-sites", False), ("pit", False), ("lidar120k", True), ("stereo300k", True),
+            ("paper34x22", False), ("las700k", True)]
     if args.only:
         plan = [p for p in plan if p[0] in args.only]
     expanded = []
@@ -507,24 +512,15 @@ def collect(args) -> dict:
             tiles = sorted(p.name for p in (root / "las").iterdir()
                            if p.suffix.lower() in (".las", ".laz")) if root else []
             expanded += [(f"las:{t}", memory) for t in tiles] or [("las", memory)]
-        elif dataset == "kitti-tilt":  # one task per tilt, the same frames rotated
-            expanded += [(f"kitti-tilt:{t}", memory) for t in KITTI_TILTS]
-        elif dataset == "kitti-lines":  # one task per line count
-            expanded += [(f"kitti-lines:{n}", memory) for n in KITTI_LINES]
-        elif dataset == "kitti-fov":  # one task per field of view
-            expanded += [(f"kitti-fov:{v}", memory) for v in KITTI_FOVS]
-        elif dataset == "kitti-low":  # one task per share of low returns
-            expanded += [(f"kitti-low:{v}", memory) for v in KITTI_LOW]
-        elif dataset == "kitti-noise":  # one task per noise level
-            expanded += [(f"kitti-noise:{v}", memory) for v in KITTI_NOISE]
+        elif dataset in KITTI_FAMILIES:  # one task per variant of the same frames
+            expanded += [(f"{dataset}:{v}", memory) for v in KITTI_FAMILIES[dataset][0]]
         elif dataset == "dem-sites":  # one task per sensor over the same sites
             expanded += [(f"dem-sites:{s}", memory) for s in DEM_SENSORS]
         else:
             expanded.append((dataset, memory))
     for dataset, memory in expanded:
         for method in methods:
-            variant = dataset.startswith(("las", "kitti-tilt", "kitti-lines", "kitti-fov",
-                                          "kitti-low", "kitti-noise", "dem-sites", "pit"))
+            variant = dataset.startswith(("las", "dem-sites", "pit", *KITTI_FAMILIES))
             repeats = max(1, args.repeats // 2) if variant else args.repeats
             if dataset == "paper34x22" and method != OURS:
                 continue  # the region-limited configuration is ours only
