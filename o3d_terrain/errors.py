@@ -65,10 +65,15 @@ class StageError(O3DTerrainError, RuntimeError):
     """A stage failed while running; the message starts with the stage name."""
 
 
-def did_you_mean(name: str, candidates: Sequence[str]) -> str:
-    """Return " (did you mean 'x'?)" for the closest candidate, or "" when none is close."""
-    close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
-    return f"did you mean '{close[0]}'?" if close else ""
+def did_you_mean(name: str, candidates: Sequence[str], n: int = 1) -> str:
+    """Return "did you mean 'x'?" for the closest candidate ("did you mean 'x', 'y' or 'z'?"
+    for the ``n`` closest), or "" when none is close."""
+    close = [f"'{c}'" for c in difflib.get_close_matches(name, list(candidates), n=n,
+                                                          cutoff=0.6)]
+    if not close:
+        return ""
+    return "did you mean " + (close[0] if len(close) == 1 else
+                              ", ".join(close[:-1]) + f" or {close[-1]}") + "?"
 
 
 def checked_keywords(hints: Mapping[str, str] | None = None) -> Callable[[_F], _F]:
@@ -103,13 +108,11 @@ def _unknown_keywords(function: str, unknown: Sequence[str], known: Sequence[str
     listed = False
     for name in unknown:
         text = f"{function}() got an unexpected keyword argument '{name}'"
-        close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+        close = did_you_mean(name, known, n=3)
         if hints and name in hints:
             text += f": {hints[name]}"
         elif close:
-            text += "; did you mean " + (f"'{close[0]}'" if len(close) == 1 else
-                                         ", ".join(f"'{c}'" for c in close[:-1])
-                                         + f" or '{close[-1]}'") + "?"
+            text += f"; {close}"
         else:
             listed = True
         lines.append(text)

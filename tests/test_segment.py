@@ -98,6 +98,9 @@ def test_unknown_keywords_name_the_close_ones_before_any_work():
         segment_terrain(pts, ransac_n=3, num_iterations=100)
     with pytest.raises(TypeError, match=r"'smooth'; did you mean 'smoothing'\?"):
         fit_terrain(pts, smooth=0.1)
+    with pytest.raises(TypeError, match=r"'foot_line'; did you mean 'foot_lines' or "
+                                        r"'foot_height'\?"):
+        segment_terrain(pts, foot_line=2.0)  # up to three close ones, the closest first
     # a keyword close to none: the whole list, once
     with pytest.raises(TypeError) as info:
         fit_terrain(pts, xyzzy=1, plugh=2)
