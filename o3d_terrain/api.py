@@ -20,8 +20,8 @@ from .grid import region_of
 from .ground_layer import default_layer
 from .locate import locate_sensor
 from .noise import RangeNoise
-from .segment import (AUTO_CENTRED_FACTOR, AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE, FOOT_HEIGHT, FOOT_LINES,
-                      TerrainLabel, sensor_in_cloud)
+from .segment import (AUTO_CENTRED_FACTOR, AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE,
+                      FOOT_HEIGHT, FOOT_LINES, TerrainLabel, sensor_in_cloud)
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
