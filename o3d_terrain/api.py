@@ -293,7 +293,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     knots: str = "auto",
                     foot_lines: float = FOOT_LINES,
                     line_of_sight: bool = True,
-                    low_returns: bool = True) -> tuple[TerrainSurface, np.ndarray]:
+                    low_returns: bool = True,
+                    ground_returns: str = "last") -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -326,11 +327,15 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     points lie around it (a cloud in its sensor's frame), else the sensor found from the scan
     (:func:`o3d_terrain.locate.locate_sensor`: a vehicle's scan moved into a map or world
     frame, found within a few metres and at the height of the ground there), else (0, 0, 0)
-    (a top-down scan); give it when you know it. Other options as in
-    :func:`fit_terrain` (``range_noise`` given as a coefficient uses ``sensor_origin``;
-    ``refine`` refits the surface to the points its automatic labels call terrain before
-    these labels are made; ``low_returns`` leaves isolated returns from below the ground out
-    of the fit, not out of the labels).
+    (a top-down scan); give it when you know it. ``ground_returns``: with a cloud that
+    carries each point's ``return_numbers`` and ``number_of_returns`` (an Open3D tensor cloud
+    from :func:`o3d_terrain.read_cloud` of a LAS/LAZ file, or a :class:`~o3d_terrain.Frame`),
+    "last" (default) = a point that is not the last return of its pulse is never an inlier
+    (:func:`o3d_terrain.segment.earlier_returns`); "all" = every return may be one. Other
+    options as in :func:`fit_terrain` (``range_noise`` given as a coefficient uses
+    ``sensor_origin``; ``refine`` refits the surface to the points its automatic labels call
+    terrain before these labels are made; ``low_returns`` leaves isolated returns from below
+    the ground out of the fit, not out of the labels).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
@@ -339,7 +344,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,
                        foot_height=foot_height, foot_lines=foot_lines,
-                       line_of_sight=line_of_sight)
+                       line_of_sight=line_of_sight, ground_returns=ground_returns)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots, low_returns)

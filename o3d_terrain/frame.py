@@ -25,6 +25,10 @@ from .errors import InputError, warn
 LABELS = "labels"
 HEIGHTS_ABOVE_TERRAIN = "heights_above_terrain"
 SLOPES_DEG = "slopes_deg"
+#: per-point attributes read from LAS/LAZ files (o3d_terrain.io.read_cloud): a pulse's return
+#: number and its number of returns, which the Segmenter reads (its option ground_returns)
+RETURN_NUMBERS = "return_numbers"
+NUMBER_OF_RETURNS = "number_of_returns"
 
 
 def _tensor(array: np.ndarray) -> o3d.core.Tensor:

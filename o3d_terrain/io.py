@@ -46,7 +46,7 @@ import open3d as o3d
 
 from ._files import output_path
 from .errors import InputError
-from .frame import Frame, as_frame, cloud_from_numpy
+from .frame import NUMBER_OF_RETURNS, RETURN_NUMBERS, Frame, as_frame, cloud_from_numpy
 
 #: the ``units`` choices of :func:`read_cloud`
 UNITS = ("metres", "file")
@@ -262,8 +262,8 @@ def _read_las(path: Path, *, to_metres: bool = True) -> o3d.t.geometry.PointClou
     attributes: dict[str, np.ndarray] = {
         "classification": np.asarray(las.classification, dtype=np.int32),
         "intensities": np.asarray(las.intensity, dtype=np.float32),
-        "return_numbers": np.asarray(las.return_number, dtype=np.int32),
-        "number_of_returns": np.asarray(las.number_of_returns, dtype=np.int32),
+        RETURN_NUMBERS: np.asarray(las.return_number, dtype=np.int32),
+        NUMBER_OF_RETURNS: np.asarray(las.number_of_returns, dtype=np.int32),
     }
     names = set(las.point_format.dimension_names)
     if {"red", "green", "blue"} <= names:

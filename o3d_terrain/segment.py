@@ -41,8 +41,8 @@ from .misfit import (
 )
 from .spline import TerrainSurface
 
-__all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "heights_above_terrain",
-           "label_heights", "mark_object_feet", "out_of_sight", "relabel_along_normal",
+__all__ = ["TerrainLabel", "auto_range_coefficient", "auto_threshold", "earlier_returns",
+           "heights_above_terrain", "keep_last_returns", "label_heights", "mark_object_feet", "out_of_sight", "relabel_along_normal",
            "scan_line_spacing", "segment_points", "sensor_ground_gradient", "sensor_in_cloud",
            "thresholds", "widen_labels"]
 
@@ -63,6 +63,10 @@ AUTO_CENTRED_FACTOR = 2.5
 #: heights sampled for that centre and its spread: their medians stand within about 1.3 % of
 #: a noise scale of the whole cloud's (0.06 ms a KITTI frame; 0.8 ms from every second height)
 CENTRE_SAMPLE = 10_000
+
+#: which returns of a pulse may be terrain (the Segmenter's ground_returns): the last (or
+#: only) one, the ground filters' usual rule (PDAL's SMRF and PMF default to it), or all
+GROUND_RETURNS = ("last", "all")
 
 #: the thresholds are distances along the surface normal (:func:`relabel_along_normal`):
 #: vertically t * sqrt(1 + |grad S|^2), at most this many times t (the factor of a 60° face)
@@ -741,6 +745,28 @@ def widen_labels(labels: np.ndarray, heights: np.ndarray, local: np.ndarray,
     labels[wide & (labels == TerrainLabel.BELOW_TERRAIN)
            & (heights >= -local)] = TerrainLabel.TERRAIN
     return taken
+
+
+def earlier_returns(return_numbers, number_of_returns) -> np.ndarray:
+    """(N,) bool: the points that are not the last return of their pulse (a LAS/LAZ file's
+    ``return_number`` below its ``number_of_returns``): the pulse went on past them, so they
+    lie above whatever it hit last (a canopy, a wire, a roof's edge) and are not the ground.
+    Points whose numbers are 0 (unknown, as some writers leave them) or inconsistent (a
+    return number above the count) are not among them: the file says nothing about them."""
+    r = np.asarray(return_numbers).reshape(-1)
+    n = np.asarray(number_of_returns).reshape(-1)
+    if r.shape != n.shape:
+        raise InputError(f"earlier_returns: return numbers ({r.size}) and numbers of returns "
+                         f"({n.size}) must have one value per point")
+    return (r > 0) & (n > 0) & (r < n)
+
+
+def keep_last_returns(labels: np.ndarray, earlier: np.ndarray) -> int:
+    """In place: the TERRAIN points among ``earlier`` (:func:`earlier_returns`) become
+    OBSTACLE; returns how many did."""
+    moved = np.flatnonzero(earlier & (labels == TerrainLabel.TERRAIN))
+    labels[moved] = TerrainLabel.OBSTACLE
+    return int(moved.size)
 
 
 def label_heights(heights: np.ndarray, positions, *, threshold: float, below_threshold: float,

@@ -174,6 +174,8 @@ class LabelledFrame:
     sensor_height: float | None = None  # sensor height above the ground (m) when known
     range_noise: Any = None  # the sensor's o3d_terrain.noise.RangeNoise when known (stereo)
     notes: tuple[str, ...] = field(default=())
+    #: (return numbers, numbers of returns), (N,) int each, when the file gives them (LAS)
+    returns: tuple[np.ndarray, np.ndarray] | None = None
 
     def __post_init__(self):
         n = self.positions.shape[0]
@@ -188,6 +190,10 @@ class LabelledFrame:
                 )
         if self.kind not in KINDS:
             raise InputError(f"{self.name}: kind '{self.kind}' is not one of {', '.join(KINDS)}")
+        if self.returns is not None and (len(self.returns) != 2 or any(
+                np.shape(r) != (n,) for r in self.returns)):
+            raise InputError(f"{self.name}: returns must be (return numbers, numbers of "
+                             f"returns), {n} values each")
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
@@ -329,6 +335,8 @@ def read_las_frame(path: str | os.PathLike, *, labels: str | LabelSet = "asprs"
         source=str(path),
         metres_per_unit=factor,
         notes=notes,
+        returns=(np.asarray(las.return_number, dtype=np.int32),
+                 np.asarray(las.number_of_returns, dtype=np.int32)),
     )
 
 

@@ -140,22 +140,29 @@ def _finite(obj: Any) -> Any:
 
 
 def ours(**options: Any) -> Method:
-    """Our ``segment_terrain`` as a method (keyword options are passed through; a frame's
-    sensor noise model is passed as ``range_noise`` unless the options give one)."""
+    """Our ``segment_terrain`` as a method (keyword options are passed through). A frame's
+    sensor noise model is passed as ``range_noise`` unless the options give one, and its
+    return numbers (a LAS tile's) go with the points, as :func:`o3d_terrain.read_cloud` gives
+    them (``ground_returns``)."""
     try:
         from ..api import segment_terrain
+        from ..frame import NUMBER_OF_RETURNS, RETURN_NUMBERS, cloud_from_numpy
     except ImportError as exc:
         raise InputError(f"o3d_terrain.api.segment_terrain is not available in this build ({exc})") from exc
 
-    def segment(positions: np.ndarray, range_noise: Any = None) -> np.ndarray:
+    def segment(positions: np.ndarray, range_noise: Any = None,
+                returns: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         given = {} if range_noise is None else {"range_noise": range_noise}
-        _, inliers = segment_terrain(positions, **{**given, **options})
+        cloud = positions if returns is None else cloud_from_numpy(
+            positions, **{RETURN_NUMBERS: returns[0], NUMBER_OF_RETURNS: returns[1]})
+        _, inliers = segment_terrain(cloud, **{**given, **options})
         mask = np.zeros(len(positions), dtype=bool)
         mask[np.asarray(inliers, dtype=np.int64)] = True
         return mask
 
     segment.__name__ = OURS
-    segment.takes_range_noise = True  # evaluate_frame passes a frame's sensor noise model
+    segment.takes_range_noise = True  # run_method passes a frame's sensor noise model ...
+    segment.takes_returns = True  # ... and its return numbers
     return segment
 
 
@@ -180,13 +187,22 @@ def resolve_method(name: str, *, kind: str = "vehicle_lidar", sensor_height: flo
 # evaluation
 
 
+def run_method(method: Method, frame: LabelledFrame) -> np.ndarray:
+    """``method`` on the frame's points, with what else the frame knows that the method takes:
+    its sensor noise model (``range_noise``, a stereo frame's) and its return numbers
+    (``returns``, a LAS tile's)."""
+    extra = {}
+    if frame.range_noise is not None and getattr(method, "takes_range_noise", False):
+        extra["range_noise"] = frame.range_noise
+    if frame.returns is not None and getattr(method, "takes_returns", False):
+        extra["returns"] = frame.returns
+    return method(frame.positions, **extra)
+
+
 def evaluate_frame(method: Method, frame: LabelledFrame) -> FrameResult:
     """Run ``method`` on one frame and score it (raises on a bad method output)."""
     start = time.perf_counter()
-    if frame.range_noise is not None and getattr(method, "takes_range_noise", False):
-        predicted = method(frame.positions, range_noise=frame.range_noise)  # e.g. stereo
-    else:
-        predicted = method(frame.positions)
+    predicted = run_method(method, frame)
     seconds = time.perf_counter() - start
     predicted = np.asarray(predicted)
     if predicted.shape != (len(frame),) or predicted.dtype != bool:

@@ -8,7 +8,14 @@ import numpy as np
 
 from ..errors import warn
 from ..faces import FACE_RUN, face_limit, face_run, planar_cells
-from ..frame import HEIGHTS_ABOVE_TERRAIN, LABELS, SLOPES_DEG, Frame
+from ..frame import (
+    HEIGHTS_ABOVE_TERRAIN,
+    LABELS,
+    NUMBER_OF_RETURNS,
+    RETURN_NUMBERS,
+    SLOPES_DEG,
+    Frame,
+)
 from ..grid import HeightGrid, with_cell_planes, without_low_returns
 from ..level import upside_down_hint
 from ..noise import RangeNoise
@@ -26,7 +33,10 @@ from ..segment import (
     FOOT_GAP,
     FOOT_HEIGHT,
     FOOT_LINES,
+    GROUND_RETURNS,
     TerrainLabel,
+    earlier_returns,
+    keep_last_returns,
     segment_points,
     sensor_in_cloud,
 )
@@ -407,9 +417,23 @@ class Segmenter(Stage):
              "beyond a crest or a hill whose own ground is not seen "
              "(o3d_terrain.segment.out_of_sight)",
     )
+    ground_returns: str = option(
+        "last", choices=GROUND_RETURNS,
+        help="with a cloud that carries return_numbers and number_of_returns (a LAS/LAZ "
+             "file's, o3d_terrain.read_cloud): 'last' = a point that is not the last return "
+             "of its pulse is never terrain (the pulse went on past it: a canopy, a wire, a "
+             "roof's edge), as PDAL's ground filters default to; 'all' = every return may be "
+             "terrain (o3d_terrain.segment.earlier_returns)",
+    )
 
     def run(self, frame: Frame) -> Frame:
-        labels, heights = self.label(frame.product("surface"), frame.positions)
+        earlier = None
+        if self.ground_returns == "last" and frame.has_attribute(RETURN_NUMBERS) and \
+                frame.has_attribute(NUMBER_OF_RETURNS):
+            earlier = earlier_returns(frame.attribute(RETURN_NUMBERS),
+                                      frame.attribute(NUMBER_OF_RETURNS))
+        labels, heights = self.label(frame.product("surface"), frame.positions,
+                                     earlier=earlier)
         frame = frame.with_attributes(**{LABELS: labels.astype(np.uint8)[:, None],
                                          HEIGHTS_ABOVE_TERRAIN: heights[:, None]})
         counts = np.bincount(labels, minlength=4)
@@ -417,17 +441,23 @@ class Segmenter(Stage):
             f"{self.type_name}: {counts[TerrainLabel.TERRAIN]} terrain, "
             f"{counts[TerrainLabel.OBSTACLE]} obstacle, {counts[TerrainLabel.BELOW_TERRAIN]} "
             f"below-terrain, {counts[TerrainLabel.UNKNOWN]} unknown point(s)"
+            + ("" if earlier is None else
+               f"; {int(earlier.sum())} earlier return(s) of a pulse, never terrain")
         )
 
-    def label(self, surface, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def label(self, surface, positions: np.ndarray, *, earlier: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
         """Labels (N,) uint8 and heights above the terrain (N,) of (N, 3) positions: the
-        rule of :meth:`run` (:func:`~o3d_terrain.segment.segment_points`)."""
-        return segment_points(surface, positions, threshold=self.threshold,
-                              below_threshold=self.below_threshold,
-                              range_coefficient=self.range_coefficient,
-                              sensor_origin=self.sensor_origin,
-                              misfit=self.misfit_threshold, along_normal=self.along_normal,
-                              foot_height=self.foot_height,
-                              foot_cell=self.foot_cell, foot_lines=self.foot_lines,
-                              foot_behind=self.foot_behind, foot_gap=self.foot_gap,
-                              line_of_sight=self.line_of_sight)
+        rule of :meth:`run` (:func:`~o3d_terrain.segment.segment_points`); ``earlier``: (N,)
+        bool, the points that are not the last return of their pulse
+        (:func:`~o3d_terrain.segment.earlier_returns`), which are then never TERRAIN."""
+        labels, heights = segment_points(
+            surface, positions, threshold=self.threshold, below_threshold=self.below_threshold,
+            range_coefficient=self.range_coefficient, sensor_origin=self.sensor_origin,
+            misfit=self.misfit_threshold, along_normal=self.along_normal,
+            foot_height=self.foot_height, foot_cell=self.foot_cell, foot_lines=self.foot_lines,
+            foot_behind=self.foot_behind, foot_gap=self.foot_gap,
+            line_of_sight=self.line_of_sight)
+        if earlier is not None:
+            keep_last_returns(labels, earlier)
+        return labels, heights
