@@ -160,6 +160,13 @@ def _build(
         return None, [Problem(location, f"must be a mapping with 'type:' and options, got {item!r}")]
     type_name = item.get("type")
     if not isinstance(type_name, str):
+        named = [k for k in item if isinstance(k, str) and k in registry]
+        if "type" not in item and len(item) == 1 and named:
+            # "- Segmenter: {threshold: 0.3}": the name as a key, its options nested under it
+            return None, [Problem(location, f"has no 'type:' (the {kind} is named as a key, "
+                                            f"'{named[0]}:')",
+                                  f"write '- type: {named[0]}' with its options beside "
+                                  "'type:', not nested under the name")]
         return None, [Problem(location, "has no 'type:'",
                               f"add 'type: <{kind}>' (one of {', '.join(sorted(registry))})")]
     cls = registry.get(type_name)

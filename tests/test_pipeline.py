@@ -64,6 +64,18 @@ def test_malformed_yaml_reports_line(tmp_path):
         load_pipeline(path)
 
 
+def test_stage_named_as_a_key_says_how_to_write_it():
+    with pytest.raises(ConfigError) as info:
+        parse_pipeline({"stages": [{"GridQuantize": {"cell_size": 0.5}}, {"Segmenter": None},
+                                   {"cell_size": 0.5}]})
+    text = str(info.value)
+    assert "stages[0]: has no 'type:' (the stage is named as a key, 'GridQuantize:')" in text
+    assert "write '- type: GridQuantize' with its options beside 'type:'" in text
+    assert "write '- type: Segmenter'" in text
+    # a mapping of options alone gets the list of stages
+    assert "stages[2]: has no 'type:' (add 'type: <stage>' (one of " in text
+
+
 def test_overrides():
     config = {"stages": [{"type": "GridQuantize", "cell_size": 0.5}]}
     out = apply_overrides(config, ["stages.0.cell_size=0.25", "stages.0.region=[0, 1, 0, 1]"])
