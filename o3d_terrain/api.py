@@ -9,6 +9,7 @@ the caller's cloud is never modified. Non-finite points are ignored (never inlie
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import Any, Sequence
 
@@ -27,7 +28,7 @@ from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
 from .stages.terrain import RationalBSplineTerrain, Segmenter
 
-__all__ = ["fit_terrain", "segment_terrain", "cloud_positions"]
+__all__ = ["fit_terrain", "segment_terrain", "check_segment_options", "cloud_positions"]
 
 
 #: what a keyword users bring from elsewhere (Open3D's ``segment_plane``, voxel grids) is
@@ -340,6 +341,32 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
     positions, frame, origin = _input(cloud, sensor_origin)
+    quantize, terrain, segmenter = _segment_stages(
+        origin, region=region, cell_size=cell_size, control_points=control_points,
+        degree=degree, distance_threshold=distance_threshold, below_threshold=below_threshold,
+        range_coefficient=range_coefficient, method=method, smoothing=smoothing,
+        terrain_prior=terrain_prior, range_noise=range_noise,
+        misfit_threshold=misfit_threshold, along_normal=along_normal, foot_height=foot_height,
+        max_slope_deg=max_slope_deg, cell_plane=cell_plane, refine=refine, knots=knots,
+        foot_lines=foot_lines, line_of_sight=line_of_sight, low_returns=low_returns,
+        ground_returns=ground_returns)
+    if frame is None:  # numpy input: the stages' functions without a frame
+        surface = _array_fit(positions, quantize, terrain)
+        labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
+        return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
+    frame = segmenter(_terrain_frame(frame, quantize, terrain))
+    labels = frame.attribute(LABELS)
+    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
+
+
+def _segment_stages(origin, *, region, cell_size, control_points, degree, distance_threshold,
+                    below_threshold, range_coefficient, method, smoothing, terrain_prior,
+                    range_noise, misfit_threshold, along_normal, foot_height, max_slope_deg,
+                    cell_plane, refine, knots, foot_lines, line_of_sight, low_returns,
+                    ground_returns):
+    """The GridQuantize, RationalBSplineTerrain and Segmenter stages of
+    :func:`segment_terrain`'s options (cached; option errors raise InputError), the sensor at
+    ``origin``."""
     segmenter = _build(Segmenter, threshold=distance_threshold, below_threshold=below_threshold,
                        range_coefficient=range_coefficient, sensor_origin=origin,
                        misfit_threshold=misfit_threshold, along_normal=along_normal,
@@ -348,10 +375,20 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots, low_returns)
-    if frame is None:  # numpy input: the stages' functions without a frame
-        surface = _array_fit(positions, quantize, terrain)
-        labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
-        return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
-    frame = segmenter(_terrain_frame(frame, quantize, terrain))
-    labels = frame.attribute(LABELS)
-    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
+    return quantize, terrain, segmenter
+
+
+def check_segment_options(**options: Any) -> None:
+    """Raise what :func:`segment_terrain` would raise for these options before it looks at a
+    cloud: TypeError for an unknown keyword (with the closest known ones), InputError for a
+    value its stages reject (naming the stage, the option and what it takes). A batch over
+    many clouds (``o3d-terrain eval segmentation --option``) checks once, before reading any."""
+    params = inspect.signature(segment_terrain).parameters
+    unknown = options.keys() - params.keys() - {"cloud"}
+    if unknown or "cloud" in options:
+        segment_terrain(None, **options)  # its keyword check raises the TypeError
+    values = {name: p.default for name, p in params.items() if name != "cloud"}
+    values.update(options)
+    sensor_origin = values.pop("sensor_origin")
+    _segment_stages((0.0, 0.0, 0.0) if sensor_origin is None else _origin(sensor_origin),
+                    **values)

@@ -456,6 +456,26 @@ def test_eval_segmentation_label_options(tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
+def test_eval_segmentation_checks_option_values_before_reading(tmp_path, capsys):
+    from o3d_terrain.api import check_segment_options
+
+    check_segment_options(cell_size=0.25, distance_threshold=None, sensor_origin=[0, 0, 1.7])
+    with pytest.raises(InputError, match="'cell_size' option of GridQuantize must be a float"):
+        check_segment_options(cell_size=-1)
+    with pytest.raises(InputError, match="did you mean 'last'"):
+        check_segment_options(ground_returns="lsat")
+    with pytest.raises(TypeError, match="did you mean 'cell_size'"):
+        check_segment_options(cel_size=1)
+    _fake_kitti(tmp_path / "seq", frames=2, points=16)
+    # one error before any frame, not a frame skipped per frame
+    assert _cli(["eval", "segmentation", str(tmp_path / "seq"), "--option", "cell_size=-1"]) == 1
+    captured = capsys.readouterr()
+    assert "GridQuantize: The 'cell_size' option of GridQuantize must be a float > 0" in \
+        captured.err
+    assert "skipped" not in captured.out + captured.err
+    assert "evaluating" not in captured.err
+
+
 def test_eval_segmentation_rejects_unknown_method(tmp_path, capsys):
     _fake_kitti(tmp_path / "seq", frames=1, points=16)
     assert _cli(["eval", "segmentation", str(tmp_path / "seq"), "-m", "patchwork"]) == 2

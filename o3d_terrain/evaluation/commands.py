@@ -179,13 +179,15 @@ def run_segmentation_command(args: argparse.Namespace) -> int:
                                       NAME_THE_LABELS))
     if labels is not None and not args.json:
         print(f"label set {labels.describe()}", file=sys.stderr)
+    # our options checked (names and values) before any data set is read
+    ours_method = ours(**options) if any(m in (OURS, "ours") for m in methods) else None
     reports = []
     for dataset in args.datasets:
         for method in methods:
             frames = open_dataset(dataset, seed=args.seed, limit=args.limit, labels=labels,
                                   label_field=args.label_field)
             if method in (OURS, "ours"):
-                run: Any = ours(**options)
+                run: Any = ours_method
             else:
                 resolve_method(method)  # fail early with the bench-extra message
                 run = method

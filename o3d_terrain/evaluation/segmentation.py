@@ -140,15 +140,17 @@ def _finite(obj: Any) -> Any:
 
 
 def ours(**options: Any) -> Method:
-    """Our ``segment_terrain`` as a method (keyword options are passed through). A frame's
+    """Our ``segment_terrain`` as a method (keyword options are passed through, checked here:
+    :func:`o3d_terrain.api.check_segment_options`). A frame's
     sensor noise model is passed as ``range_noise`` unless the options give one, and its
     return numbers (a LAS tile's) go with the points, as :func:`o3d_terrain.read_cloud` gives
     them (``ground_returns``)."""
     try:
-        from ..api import segment_terrain
+        from ..api import check_segment_options, segment_terrain
         from ..frame import NUMBER_OF_RETURNS, RETURN_NUMBERS, cloud_from_numpy
     except ImportError as exc:
         raise InputError(f"o3d_terrain.api.segment_terrain is not available in this build ({exc})") from exc
+    check_segment_options(**options)  # a bad option fails here, not once per frame
 
     def segment(positions: np.ndarray, range_noise: Any = None,
                 returns: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
