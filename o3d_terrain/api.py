@@ -28,7 +28,8 @@ from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
 from .stages.terrain import RationalBSplineTerrain, Segmenter
 
-__all__ = ["fit_terrain", "segment_terrain", "check_segment_options", "cloud_positions"]
+__all__ = ["fit_terrain", "segment_terrain", "check_fit_options", "check_segment_options",
+           "cloud_positions"]
 
 
 #: what a keyword users bring from elsewhere (Open3D's ``segment_plane``, voxel grids) is
@@ -378,17 +379,30 @@ def _segment_stages(origin, *, region, cell_size, control_points, degree, distan
     return quantize, terrain, segmenter
 
 
+def _with_defaults(function, options: dict) -> tuple[dict, tuple[float, ...]]:
+    """``function``'s keyword defaults updated with ``options`` (its keyword check raises the
+    TypeError of an unknown one), without ``sensor_origin``, and that origin ((0, 0, 0) for
+    None: what the stages are built with before a cloud says where the sensor is)."""
+    params = inspect.signature(function).parameters
+    if options.keys() - params.keys() or "cloud" in options:
+        function(None, **options)  # its keyword check raises the TypeError
+    values = {name: p.default for name, p in params.items() if name != "cloud"}
+    values.update(options)
+    sensor_origin = values.pop("sensor_origin")
+    return values, (0.0, 0.0, 0.0) if sensor_origin is None else _origin(sensor_origin)
+
+
 def check_segment_options(**options: Any) -> None:
     """Raise what :func:`segment_terrain` would raise for these options before it looks at a
     cloud: TypeError for an unknown keyword (with the closest known ones), InputError for a
     value its stages reject (naming the stage, the option and what it takes). A batch over
     many clouds (``o3d-terrain eval segmentation --option``) checks once, before reading any."""
-    params = inspect.signature(segment_terrain).parameters
-    unknown = options.keys() - params.keys() - {"cloud"}
-    if unknown or "cloud" in options:
-        segment_terrain(None, **options)  # its keyword check raises the TypeError
-    values = {name: p.default for name, p in params.items() if name != "cloud"}
-    values.update(options)
-    sensor_origin = values.pop("sensor_origin")
-    _segment_stages((0.0, 0.0, 0.0) if sensor_origin is None else _origin(sensor_origin),
-                    **values)
+    values, origin = _with_defaults(segment_terrain, options)
+    _segment_stages(origin, **values)
+
+
+def check_fit_options(**options: Any) -> None:
+    """:func:`check_segment_options` for :func:`fit_terrain` (``o3d-terrain eval terrain
+    --option``)."""
+    values, origin = _with_defaults(fit_terrain, options)
+    _terrain_stages(sensor_origin=origin, **values)  # its parameters are fit_terrain's

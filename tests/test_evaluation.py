@@ -476,6 +476,21 @@ def test_eval_segmentation_checks_option_values_before_reading(tmp_path, capsys)
     assert "evaluating" not in captured.err
 
 
+def test_eval_terrain_checks_option_values_before_fitting(capsys):
+    from o3d_terrain.api import check_fit_options
+
+    check_fit_options(cell_size=0.25, control_points=[25, 25], sensor_origin=[0, 0, 1.7])
+    with pytest.raises(InputError, match="'knots' option of RationalBSplineTerrain"):
+        check_fit_options(knots="adaptve")
+    with pytest.raises(TypeError, match="foot_height"):
+        check_fit_options(foot_height=0.3)  # a Segmenter option: not fit_terrain's
+    assert _cli(["eval", "terrain", "synthetic:hills,ramp", "--option", "cell_size=-1"]) == 1
+    captured = capsys.readouterr()
+    assert "GridQuantize: The 'cell_size' option of GridQuantize must be a float > 0" in \
+        captured.err
+    assert "skipped" not in captured.out + captured.err
+
+
 def test_eval_segmentation_rejects_unknown_method(tmp_path, capsys):
     _fake_kitti(tmp_path / "seq", frames=1, points=16)
     assert _cli(["eval", "segmentation", str(tmp_path / "seq"), "-m", "patchwork"]) == 2

@@ -140,11 +140,13 @@ def _f(value: float, digits: int) -> str:
 
 
 def default_fitter(**options: Any) -> Fitter:
-    """Our :func:`o3d_terrain.api.fit_terrain` with these options."""
+    """Our :func:`o3d_terrain.api.fit_terrain` with these options (checked here:
+    :func:`o3d_terrain.api.check_fit_options`)."""
     try:
-        from ..api import fit_terrain
+        from ..api import check_fit_options, fit_terrain
     except ImportError as exc:
         raise InputError(f"o3d_terrain.api.fit_terrain is not available in this build ({exc})") from exc
+    check_fit_options(**options)  # a bad option fails here, not once per frame
 
     def fit(positions: np.ndarray):
         return fit_terrain(positions, **options)
