@@ -29,6 +29,9 @@ SLOPES_DEG = "slopes_deg"
 #: number and its number of returns, which the Segmenter reads (its option ground_returns)
 RETURN_NUMBERS = "return_numbers"
 NUMBER_OF_RETURNS = "number_of_returns"
+#: ... and the names other tools give them in PLY/PCD files (PDAL's dimension names, laspy's)
+RETURN_NUMBERS_ALIASES = (RETURN_NUMBERS, "ReturnNumber", "return_number")
+NUMBER_OF_RETURNS_ALIASES = (NUMBER_OF_RETURNS, "NumberOfReturns")
 
 
 def _tensor(array: np.ndarray) -> o3d.core.Tensor:

@@ -107,3 +107,16 @@ def test_las_tile_returns_reach_the_labels_and_the_evaluation(tmp_path):
     with pytest.raises(InputError, match="returns must be"):
         LabelledFrame(name="bad", positions=frame.positions, is_ground=frame.is_ground,
                       scored=frame.scored, returns=(r, count[:5]))
+
+
+def test_pdal_return_fields_of_a_ply_file_count_too(tmp_path):
+    p, r, count, _, low = _tile(seed=2)
+    cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(p))
+    cloud.point["ReturnNumber"] = o3d.core.Tensor(r[:, None])
+    cloud.point["NumberOfReturns"] = o3d.core.Tensor(count[:, None])
+    path = tmp_path / "tile.ply"
+    o3d.t.io.write_point_cloud(str(path), cloud)
+    _, inliers = segment_terrain(read_cloud(path))
+    assert not np.isin(np.flatnonzero(low), inliers).any()
+    _, inliers_all = segment_terrain(read_cloud(path), ground_returns="all")
+    assert np.isin(np.flatnonzero(low), inliers_all).mean() > 0.9

@@ -11,8 +11,8 @@ from ..faces import FACE_RUN, face_limit, face_run, planar_cells
 from ..frame import (
     HEIGHTS_ABOVE_TERRAIN,
     LABELS,
-    NUMBER_OF_RETURNS,
-    RETURN_NUMBERS,
+    NUMBER_OF_RETURNS_ALIASES,
+    RETURN_NUMBERS_ALIASES,
     SLOPES_DEG,
     Frame,
 )
@@ -420,7 +420,8 @@ class Segmenter(Stage):
     ground_returns: str = option(
         "last", choices=GROUND_RETURNS,
         help="with a cloud that carries return_numbers and number_of_returns (a LAS/LAZ "
-             "file's, o3d_terrain.read_cloud): 'last' = a point that is not the last return "
+             "file's, o3d_terrain.read_cloud; PDAL's ReturnNumber and NumberOfReturns of a "
+             "PLY/PCD file too): 'last' = a point that is not the last return "
              "of its pulse is never terrain (the pulse went on past it: a canopy, a wire, a "
              "roof's edge), as PDAL's ground filters default to; 'all' = every return may be "
              "terrain (o3d_terrain.segment.earlier_returns)",
@@ -428,10 +429,10 @@ class Segmenter(Stage):
 
     def run(self, frame: Frame) -> Frame:
         earlier = None
-        if self.ground_returns == "last" and frame.has_attribute(RETURN_NUMBERS) and \
-                frame.has_attribute(NUMBER_OF_RETURNS):
-            earlier = earlier_returns(frame.attribute(RETURN_NUMBERS),
-                                      frame.attribute(NUMBER_OF_RETURNS))
+        numbers = [next((n for n in names if frame.has_attribute(n)), None)
+                   for names in (RETURN_NUMBERS_ALIASES, NUMBER_OF_RETURNS_ALIASES)]
+        if self.ground_returns == "last" and None not in numbers:
+            earlier = earlier_returns(*(frame.attribute(n) for n in numbers))
         labels, heights = self.label(frame.product("surface"), frame.positions,
                                      earlier=earlier)
         frame = frame.with_attributes(**{LABELS: labels.astype(np.uint8)[:, None],
