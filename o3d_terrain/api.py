@@ -42,6 +42,13 @@ _KEYWORD_HINTS = {
     "voxel_size": "the grid's cell is cell_size (m)",
     "resolution": "the grid's cell is cell_size (m)",
 }
+#: the options of segment_terrain's labels (the Segmenter's), which fit_terrain does not take
+_LABEL_OPTIONS = ("distance_threshold", "below_threshold", "range_coefficient",
+                  "misfit_threshold", "along_normal", "foot_height", "foot_lines",
+                  "line_of_sight", "ground_returns")
+_FIT_HINTS = {**_KEYWORD_HINTS, **{
+    name: f"{name} is an option of segment_terrain's labels, not of the fit"
+    for name in _LABEL_OPTIONS}}
 
 
 def cloud_positions(cloud: Any) -> np.ndarray:
@@ -208,7 +215,7 @@ def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *,
                            centred_factor=centred_factor)
 
 
-@checked_keywords(_KEYWORD_HINTS)
+@checked_keywords(_FIT_HINTS)
 def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size: float = 0.5,
                 control_points: Sequence[int] | int | None = None, degree: int = 3,
                 method: str = "robust", smoothing: float = 0.05,

@@ -106,6 +106,21 @@ def test_unknown_keywords_name_the_close_ones_before_any_work():
         fit_terrain(pts, xyzzy=1, plugh=2)
     assert "'plugh'" in str(info.value) and "'xyzzy'" in str(info.value)
     assert str(info.value).count("fit_terrain() takes cell_plane, cell_size") == 1
+    # a label option given to the fit says whose it is, not a far-off fit option
+    with pytest.raises(TypeError, match=r"'foot_height': foot_height is an option of "
+                                        r"segment_terrain's labels"):
+        fit_terrain(pts, foot_height=0.3)
+
+
+def test_the_label_options_fit_terrain_names_are_segment_terrains_own():
+    import inspect
+
+    from o3d_terrain.api import _LABEL_OPTIONS
+
+    def names(function):
+        return set(inspect.signature(function).parameters)
+
+    assert set(_LABEL_OPTIONS) == names(segment_terrain) - names(fit_terrain)
 
 
 @pytest.mark.parametrize("grade", [0.0, 0.5, 1.0, 3.0])
