@@ -141,10 +141,9 @@ def _finite(obj: Any) -> Any:
 
 def ours(**options: Any) -> Method:
     """Our ``segment_terrain`` as a method (keyword options are passed through, checked here:
-    :func:`o3d_terrain.api.check_segment_options`). A frame's
-    sensor noise model is passed as ``range_noise`` unless the options give one, and its
-    return numbers (a LAS tile's) go with the points, as :func:`o3d_terrain.read_cloud` gives
-    them (``ground_returns``)."""
+    :func:`o3d_terrain.api.check_segment_options`). A frame's sensor noise model is passed as
+    ``range_noise`` unless the options give one, and its return numbers (a LAS tile's) go with
+    the points, as :func:`o3d_terrain.read_cloud` gives them (``ground_returns``)."""
     try:
         from ..api import check_segment_options, segment_terrain
         from ..frame import NUMBER_OF_RETURNS, RETURN_NUMBERS, cloud_from_numpy
