@@ -42,6 +42,7 @@ import numpy as np  # noqa: E402
 
 import o3d_terrain  # noqa: E402
 from o3d_terrain.evaluation.datasets import data_root  # noqa: E402
+from o3d_terrain.evaluation.peers import PEERS
 from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
 from o3d_terrain.evaluation.terrain import read_raster  # noqa: E402
 from o3d_terrain.synthetic import (GridRelief, Obstacle, Scene, default_obstacles,  # noqa: E402
@@ -154,8 +155,7 @@ def main() -> None:
     if root is None or not (root / "dem_1m" / "dem.tif").exists():
         raise SystemExit("needs ../shared/data/dem_1m/dem.tif (or $O3D_TERRAIN_DATA)")
     heights = read_raster(root / "dem_1m" / "dem.tif").heights.astype(np.float64)
-    methods = ["o3d_terrain", LEVELLED] + (["patchworkpp", "csf", "smrf", "ransac_plane"]
-                                           if args.peers else [])
+    methods = ["o3d_terrain", LEVELLED] + (list(PEERS) if args.peers else [])
     sensors = args.sensors.split(",")
     unknown = [s for s in sensors if s not in SENSORS and s != "airborne"]
     if unknown:

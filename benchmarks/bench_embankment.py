@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 from bench_pit import OBSTACLE_HEIGHT, score_row
 
+from o3d_terrain.evaluation.peers import PEERS
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
 
@@ -66,7 +67,7 @@ def main() -> None:
     parser.add_argument("--peers", action="store_true",
                         help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
     args = parser.parse_args()
-    peers = ["patchworkpp", "csf", "smrf", "ransac_plane"] if args.peers else []
+    peers = list(PEERS) if args.peers else []
     columns = list(VARIANTS) + peers
     print("ground F1 / obstacle recall; `segment_terrain` with its defaults and two variants")
     print("| embankment (height, flanks, top) | sensor height (m) | points | "

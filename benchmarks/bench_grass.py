@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from o3d_terrain.evaluation import datasets as ds  # noqa: E402
 from o3d_terrain.evaluation.metrics import segmentation_counts  # noqa: E402
+from o3d_terrain.evaluation.peers import PEERS
 from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
 
 
@@ -72,8 +73,7 @@ def main() -> None:
     parser.add_argument("--peers", action="store_true",
                         help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
     args = parser.parse_args()
-    methods = ["o3d_terrain"] + (["patchworkpp", "csf", "smrf", "ransac_plane"]
-                                 if args.peers else [])
+    methods = ["o3d_terrain"] + (list(PEERS) if args.peers else [])
     heights = [float(h) for h in args.heights.split(",")]
     print(f"ground F1 % (recall %), extinction {args.extinction:g}/m; "
           "columns: no grass, then each grass height")

@@ -23,6 +23,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 from o3d_terrain.evaluation.metrics import segmentation_counts
+from o3d_terrain.evaluation.peers import PEERS
 from o3d_terrain.evaluation.segmentation import resolve_method
 from o3d_terrain.synthetic import default_obstacles, make_scene, sample_lidar
 
@@ -67,8 +68,7 @@ def main() -> None:
     parser.add_argument("--peers", action="store_true",
                         help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
     args = parser.parse_args()
-    methods = ["o3d_terrain"] + (["patchworkpp", "csf", "smrf", "ransac_plane"]
-                                 if args.peers else [])
+    methods = ["o3d_terrain"] + (list(PEERS) if args.peers else [])
     sigmas = [float(s) for s in args.sigmas.split(",")]
     print("ground F1 % (ground recall %) / obstacle recall % of the points more than "
           f"{TALL:g} m up; columns: no added noise, then each noise sigma")

@@ -38,7 +38,7 @@ import numpy as np
 
 import o3d_terrain
 from o3d_terrain.evaluation.metrics import segmentation_counts
-from o3d_terrain.evaluation.peers import make_peer
+from o3d_terrain.evaluation.peers import PEERS, make_peer
 from o3d_terrain.synthetic import Plane, Ramp, Scene, sample_lidar
 from o3d_terrain.synthetic.scene import Obstacle, default_obstacles
 from o3d_terrain.synthetic.sensors import rotation_matrix
@@ -149,7 +149,7 @@ def main() -> None:
     parser.add_argument("--peers", action="store_true",
                         help="also Patchwork++, CSF, SMRF and the RANSAC plane (bench extra)")
     args = parser.parse_args()
-    peers = ["patchworkpp", "csf", "smrf", "ransac_plane"] if args.peers else []
+    peers = list(PEERS) if args.peers else []
     columns = ["automatic" if v is None else f"{v:g}°" for v in LIMITS] + peers
     print("ground F1 / obstacle recall; `segment_terrain` with `max_slope_deg` automatic or fixed")
     print("| sensor on | faces | sensor height (m) | yaw | points | limit chosen (face run, m) | "
