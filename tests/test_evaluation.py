@@ -571,6 +571,15 @@ def test_kitti_tilt_rotates_about_the_sensor_origin_and_keeps_labels(tmp_path, m
         run_all.load_frames("kitti-tilt:pitch7")
 
 
+def _patterned_frame(positions, *, obstacle=False):
+    """A labelled frame of these points whose masks follow the point index (every 3rd point
+    ground, every 5th unscored, with ``obstacle`` every 3rd from the second an obstacle), so a
+    variant's subset of the masks can be checked point for point."""
+    index = np.arange(len(positions))
+    return ds.LabelledFrame("f", positions, is_ground=index % 3 == 0, scored=index % 5 != 0,
+                            obstacle=index % 3 == 1 if obstacle else None)
+
+
 def test_kitti_lines_keep_every_kth_scan_line_with_its_labels(tmp_path, monkeypatch):
     run_all = _run_all()
     # 4 scan lines of 90 points, each sweeping the azimuth from 0.5° to 356.5° at its own
@@ -583,8 +592,7 @@ def test_kitti_lines_keep_every_kth_scan_line_with_its_labels(tmp_path, monkeypa
     assert run_all.scan_lines(np.zeros((0, 3))).shape == (0,)
 
     # a recorded frame: every 2nd line kept, masks subset alike
-    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(360) % 3 == 0,
-                             scored=np.arange(360) % 5 != 0, obstacle=np.arange(360) % 3 == 1)
+    frame = _patterned_frame(positions, obstacle=True)
     half = run_all.line_frame(frame, 2)
     keep = np.repeat(np.arange(4), 90) % 2 == 0
     assert np.array_equal(half.positions, positions[keep])
@@ -601,8 +609,7 @@ def test_kitti_fov_keeps_the_points_ahead_with_their_labels(tmp_path, monkeypatc
     # one ring of 72 points every 5° of azimuth from -177.5° to 177.5° (none on a boundary)
     azimuth = np.radians(np.arange(72) * 5.0 - 177.5)
     positions = np.stack([10 * np.cos(azimuth), 10 * np.sin(azimuth), np.full(72, -1.7)], 1)
-    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(72) % 3 == 0,
-                             scored=np.arange(72) % 5 != 0, obstacle=np.arange(72) % 3 == 1)
+    frame = _patterned_frame(positions, obstacle=True)
     for fov, half in run_all.KITTI_FOVS.items():
         crop = run_all.fov_frame(frame, half)
         keep = np.abs(np.degrees(azimuth)) <= half
@@ -623,8 +630,7 @@ def test_kitti_low_moves_points_down_and_leaves_them_unscored(tmp_path, monkeypa
     run_all = _run_all()
     rng = np.random.default_rng(3)
     positions = rng.uniform(-10, 10, (5000, 3))
-    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(5000) % 3 == 0,
-                             scored=np.arange(5000) % 5 != 0)
+    frame = _patterned_frame(positions)
     for name, share in run_all.KITTI_LOW.items():
         low = run_all.low_frame(frame, share)
         drop = frame.positions[:, 2] - low.positions[:, 2]
@@ -645,8 +651,7 @@ def test_kitti_noise_adds_seeded_gaussian_noise_to_z_only(tmp_path, monkeypatch)
     run_all = _run_all()
     rng = np.random.default_rng(3)
     positions = rng.uniform(-10, 10, (20_000, 3))
-    frame = ds.LabelledFrame("f", positions, is_ground=np.arange(20_000) % 3 == 0,
-                             scored=np.arange(20_000) % 5 != 0)
+    frame = _patterned_frame(positions)
     for name, sigma in run_all.KITTI_NOISE.items():
         noisy = run_all.noise_frame(frame, sigma)
         added = noisy.positions[:, 2] - positions[:, 2]
