@@ -245,6 +245,13 @@ def _units(keys: dict | None, wkts: list[str]) -> LasUnits:
     return LasUnits(1.0, 1.0, "unknown")
 
 
+def las_returns(las) -> tuple[np.ndarray, np.ndarray]:
+    """(return numbers, numbers of returns) of a ``laspy.LasData``'s points, int32 each: what
+    the Segmenter's ``ground_returns`` reads."""
+    return (np.asarray(las.return_number, dtype=np.int32),
+            np.asarray(las.number_of_returns, dtype=np.int32))
+
+
 def las_positions(las, *, to_metres: bool = True) -> tuple[np.ndarray, LasUnits]:
     """(N, 3) float64 positions of a ``laspy.LasData`` (in metres when ``to_metres``) and
     the file's :class:`LasUnits`."""
@@ -262,9 +269,8 @@ def _read_las(path: Path, *, to_metres: bool = True) -> o3d.t.geometry.PointClou
     attributes: dict[str, np.ndarray] = {
         "classification": np.asarray(las.classification, dtype=np.int32),
         "intensities": np.asarray(las.intensity, dtype=np.float32),
-        RETURN_NUMBERS: np.asarray(las.return_number, dtype=np.int32),
-        NUMBER_OF_RETURNS: np.asarray(las.number_of_returns, dtype=np.int32),
     }
+    attributes[RETURN_NUMBERS], attributes[NUMBER_OF_RETURNS] = las_returns(las)
     names = set(las.point_format.dimension_names)
     if {"red", "green", "blue"} <= names:
         rgb = np.column_stack([las.red, las.green, las.blue]).astype(np.float64)

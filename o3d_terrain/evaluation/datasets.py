@@ -37,7 +37,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..io import las_positions, open_las
+from ..io import las_positions, las_returns, open_las
 
 SEMANTIC_KITTI_GROUND = (40, 44, 48, 49, 60, 72)
 SEMANTIC_KITTI_IGNORED = (0, 1)
@@ -335,8 +335,7 @@ def read_las_frame(path: str | os.PathLike, *, labels: str | LabelSet = "asprs"
         source=str(path),
         metres_per_unit=factor,
         notes=notes,
-        returns=(np.asarray(las.return_number, dtype=np.int32),
-                 np.asarray(las.number_of_returns, dtype=np.int32)),
+        returns=las_returns(las),
     )
 
 
