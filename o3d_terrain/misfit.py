@@ -53,7 +53,8 @@ __all__ = ["misfit_thresholds", "widened_thresholds", "block_size", "MISFIT_FACT
            "MISFIT_HIGH", "MISFIT_FACE_LOW", "MISFIT_FACE_CELL", "MISFIT_FACE_SPREAD",
            "face_points", "MISFIT_CELL", "MISFIT_BLOCK", "MISFIT_SIGNIFICANT", "MISFIT_MIN_CELLS",
            "MISFIT_REACH", "MISFIT_PLANE_MIN_POINTS", "MISFIT_PLANE_ROUNDS",
-           "local_plane_terrain", "misfit_reach", "plane_radius", "PLANE_POINTS"]
+           "local_plane_terrain", "misfit_reach", "plane_radius", "PLANE_POINTS", "over_terrain",
+           "OVER_RADIUS", "OVER_DEPTH", "OVER_PLANE_POINTS"]
 
 #: threshold = this many robust misfit scales (the factor of the global automatic threshold)
 MISFIT_FACTOR = 3.5
@@ -90,6 +91,14 @@ MISFIT_PLANE_ROUNDS = 20
 #: on a top-down scan (:func:`o3d_terrain.segment.segment_points`), the local planes reach as
 #: far as holds this many terrain points at the scan's density (:func:`plane_radius`)
 PLANE_POINTS = 16
+#: a point the widened threshold or the local planes take above the global threshold is not
+#: terrain when a terrain point within OVER_RADIUS (m, x/y) lies more than OVER_DEPTH (m)
+#: below the plane through it with the surface's slope (:func:`over_terrain`)
+OVER_RADIUS = 0.75
+OVER_DEPTH = 0.5
+#: ... nor against the plane of the points around it, where they (it included) number at least
+#: this many: the points of a face steeper than the surface lie along their own plane
+OVER_PLANE_POINTS = 6
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -350,6 +359,32 @@ def face_points(positions: np.ndarray, heights: np.ndarray, candidates: np.ndarr
     extent = _lp.column_spread(np.asarray(positions, dtype=np.float64), h, float(high), idx,
                                float(cell))
     return idx[extent > spread]
+
+
+def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndarray,
+                 gradient, *, radius: float = OVER_RADIUS, depth: float = OVER_DEPTH,
+                 plane_points: int = OVER_PLANE_POINTS) -> np.ndarray:
+    """The ``candidates`` (indices) that stand over terrain: some ``terrain`` (N,) bool point
+    within ``radius`` (x/y) lies more than ``depth`` below the plane through the candidate
+    with the surface's slope there (``gradient(x, y) -> (gx, gy)``) and, where the candidate
+    and the terrain points within ``radius`` number at least ``plane_points``, also below the
+    plane through it with the slope of their own plane. Ground is one height at each place: a
+    point with terrain that far beneath it, beyond what the slope explains, is vegetation or
+    an object over the ground (docs/algorithm.md, "Points over the terrain on a top-down
+    scan"), while a ridge the surface undercuts has its flanks along its slope, and a face
+    steeper than the surface along its own plane."""
+    p = np.asarray(positions, dtype=np.float64)
+    idx = np.ascontiguousarray(candidates, dtype=np.int64)
+    if idx.size == 0:
+        return idx
+    gx, gy = gradient(p[idx, 0], p[idx, 1])
+    gx = np.where(np.isfinite(gx), gx, 0.0)
+    gy = np.where(np.isfinite(gy), gy, 0.0)
+    least = _lp.depth_below_slope(p, np.ascontiguousarray(terrain, dtype=np.bool_), idx,
+                                  np.ascontiguousarray(gx, dtype=np.float64),
+                                  np.ascontiguousarray(gy, dtype=np.float64), float(radius),
+                                  int(plane_points))
+    return idx[least < -depth]
 
 
 def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.ndarray,

@@ -32,6 +32,15 @@ def rng() -> np.random.Generator:
 
 
 @pytest.fixture
+def vehicle_scan(monkeypatch):
+    """Every cloud with points around its ``sensor_origin`` read as a vehicle's scan, whatever
+    its density (``o3d_terrain.segment.SCAN_DENSITY_FALL`` off): for the tests of the vehicle
+    path on uniform synthetic clouds, which a scan's density would make top-down tiles."""
+    import o3d_terrain.segment as seg
+    monkeypatch.setattr(seg, "SCAN_DENSITY_FALL", 0.0)
+
+
+@pytest.fixture
 def small_cloud(rng) -> np.ndarray:
     """A gently sloped ground with a box on it: 4000 points, (N, 3) float64."""
     xy = rng.uniform([0, -10], [20, 10], size=(4000, 2))

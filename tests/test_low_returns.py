@@ -94,7 +94,7 @@ def test_few_isolated_low_points_leave_the_grid_as_it_is(rng):
     assert kept_grid is grid and kept is points and dropped == 0
 
 
-def test_many_isolated_low_points_leave_the_fit(rng):
+def test_many_isolated_low_points_leave_the_fit(rng, vehicle_scan):
     points, low = _ground_with_low_returns(rng, 0.02)
     grid = GridQuantize().grid(points)
     kept_grid, kept, dropped = without_low_returns(grid, points)
@@ -174,7 +174,7 @@ def test_a_street_scan_with_returns_from_below_the_ground(shared_data):
 
 
 @pytest.mark.parametrize("share", [0.0, 0.02])
-def test_low_returns_is_a_stage_option(share, rng):
+def test_low_returns_is_a_stage_option(share, rng, vehicle_scan):
     points, _ = _ground_with_low_returns(rng, share)
     frame = RationalBSplineTerrain(low_returns=False)(GridQuantize()(points))
     assert frame.product("terrain_fit").low_returns is None

@@ -4,8 +4,15 @@ checked against the truth of small synthetic clouds."""
 import numpy as np
 
 from o3d_terrain.api import segment_terrain
-from o3d_terrain.misfit import (MISFIT_HIGH, local_plane_terrain, misfit_thresholds,
-                                widened_thresholds)
+from o3d_terrain.misfit import (
+    MISFIT_HIGH,
+    OVER_DEPTH,
+    OVER_RADIUS,
+    local_plane_terrain,
+    misfit_thresholds,
+    over_terrain,
+    widened_thresholds,
+)
 from o3d_terrain.segment import TerrainLabel, widen_labels
 
 
@@ -22,19 +29,25 @@ def _flat_with_obstacles(rng):
     return np.column_stack([x, y, z]), bush | car
 
 
-def test_no_misfit_keeps_the_global_threshold(rng):
+def test_no_misfit_keeps_the_global_threshold(rng, monkeypatch):
+    """(The tile is top-down, which also measures points against local planes: left out.)"""
+    import o3d_terrain.segment as seg
     cloud, obstacle = _flat_with_obstacles(rng)
     heights = cloud[:, 2]  # the exact surface is z = 0
     t = misfit_thresholds(cloud, heights, 0.1, block=10.0)
     assert np.all(t == 0.1)
+    assert not seg.sensor_in_cloud(cloud)
+    monkeypatch.setattr(seg, "_top_down_planes", lambda *a, **k: 0)
     _, with_misfit = segment_terrain(cloud)
     _, without = segment_terrain(cloud, misfit_threshold=False)
     np.testing.assert_array_equal(with_misfit, without)
 
 
-def test_gullies_the_surface_bridges_widen_the_threshold(rng):
+def test_gullies_the_surface_bridges_widen_the_threshold(rng, vehicle_scan):
     """A sparse (0.7 points/m²) 240 x 200 m mountain slope (35°) with ridges and gullies 10 m
-    apart and 1.2 m deep, which 6 m control spacing cannot follow, and 2.5 m tall blocks."""
+    apart and 1.2 m deep, which 6 m control spacing cannot follow, and 2.5 m tall blocks;
+    read as a vehicle's scan (points around the origin whatever their density), whose layout
+    is the vehicle's (a top-down tile's finer refit follows these gullies by itself)."""
     n = int(240 * 200 * 0.7)
     x, y = rng.uniform(0, 240, n), rng.uniform(0, 200, n)
     ground = 0.7 * x + 0.6 * np.sin(2 * np.pi * y / 10.0) + rng.normal(0, 0.03, n)
@@ -288,10 +301,10 @@ def test_local_planes_later_rounds_equal_the_reference_round_for_round(rng):
         assert not got[bush].any() and got[patch & ~bush].mean() > 0.7
 
 
-def test_local_planes_recover_ridges_in_widened_blocks(rng, monkeypatch):
+def test_local_planes_recover_ridges_in_widened_blocks(rng, monkeypatch, vehicle_scan):
     """A sparse 35° mountain slope with 2 m ridges 16 m apart (the 6 m control spacing
     undercuts them beyond the widened threshold): the local planes recover ridge ground, and
-    no more of the 2.5 m blocks become terrain."""
+    no more of the 2.5 m blocks become terrain. Read as a vehicle's scan, as above."""
     import o3d_terrain.segment as seg
     n = int(240 * 200 * 0.7)
     x, y = rng.uniform(0, 240, n), rng.uniform(0, 200, n)
@@ -429,3 +442,112 @@ def test_widened_blocks_keep_the_sides_of_objects_beside_rough_ground(monkeypatc
     without = recall()
     assert with_faces > 0.9
     assert without < with_faces - 0.1
+
+
+def test_depth_below_slope_equals_the_point_by_point_reference(rng):
+    from o3d_terrain._kernels.local_plane import depth_below_slope
+    p = np.column_stack([rng.uniform(0, 20, 3000), rng.uniform(0, 20, 3000),
+                         rng.normal(0, 0.5, 3000)])
+    terrain = rng.uniform(size=3000) < 0.6
+    idx = rng.choice(3000, 300, replace=False)
+    gx, gy = rng.normal(0, 0.5, 300), rng.normal(0, 0.5, 300)
+    alone = depth_below_slope(p, terrain, idx, gx, gy, 0.9, 10**9)
+    both = depth_below_slope(p, terrain, idx, gx, gy, 0.9, 6)
+    planes = 0
+    for k, i in enumerate(idx):
+        d = p[:, :2] - p[i, :2]
+        near = terrain & (np.hypot(d[:, 0], d[:, 1]) <= 0.9)
+        near[i] = False
+        e = p[near, 2] - p[i, 2] - (gx[k] * d[near, 0] + gy[k] * d[near, 1])
+        assert alone[k] == (e.min() if e.size else np.inf)
+        if e.size + 1 < 6 or e.min() >= 0:
+            assert both[k] == alone[k]
+            continue
+        q = np.vstack([p[i], p[near]])
+        normal = np.linalg.eigh(np.cov(q.T, bias=True))[1][:, 0]
+        if abs(normal[2]) < 0.1:
+            assert both[k] == max(e.min(), 0.0)
+            continue
+        own = p[near, 2] - p[i, 2] + (normal[0] * d[near, 0] + normal[1] * d[near, 1]) / normal[2]
+        np.testing.assert_allclose(both[k], max(e.min(), own.min()), atol=1e-9)
+        planes += 1
+    assert planes > 100
+
+
+def test_points_over_terrain_are_those_with_terrain_beneath_them_beyond_the_slope():
+    """On a 50° slope (terrain points every 0.25 m) a point 0.8 m above the slope stands over
+    the terrain; a point on the slope, and one above the terrain's edge with nothing within
+    reach beneath it, do not, even where the surface's slope is wrong (level)."""
+    g = np.arange(0.0, 10.0, 0.25)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    slope = np.tan(np.radians(50.0))
+    ground = np.column_stack([x.ravel(), y.ravel(), slope * x.ravel()])
+    extra = np.array([[5.1, 5.1, slope * 5.1 + 0.8],   # a bush's top over the slope
+                      [5.1, 5.1, slope * 5.1 + 0.01],  # on the slope
+                      [12.0, 5.0, slope * 12.0 + 0.8]])  # beyond the terrain's edge
+    p = np.vstack([ground, extra])
+    terrain = np.ones(len(p), bool)
+    candidates = np.arange(len(ground), len(p))
+
+    def gradient(px, py):
+        return np.full(len(px), slope), np.zeros(len(px))
+
+    over = over_terrain(p, candidates, terrain, gradient)
+    assert over.tolist() == [len(ground)]
+    assert OVER_DEPTH < 0.8 and OVER_RADIUS > 0.25 * np.sqrt(2)
+    # a face steeper than the surface: measured against a level surface the slope's points
+    # lie below each other, but along their own plane
+    level = over_terrain(p, candidates, terrain, lambda px, py: (0 * px, 0 * py))
+    assert level.tolist() == [len(ground)]
+    alone = over_terrain(p, candidates, terrain, lambda px, py: (0 * px, 0 * py),
+                         plane_points=10**9)
+    assert len(ground) + 1 in alone.tolist()
+
+
+def _shrubs_on_a_mountain(rng, share=0.35, corner=(1000.0, 2000.0)):
+    """The sparse 35° mountain slope of the gullies test (0.7 points/m², ridges and gullies
+    10 m apart) from the air, a 60 m band of it under shrubs: ``share`` of the band's returns
+    from the shrubs 0.3-1.2 m up, the rest from the ground under them."""
+    n = int(240 * 200 * 0.7)
+    x, y = rng.uniform(0, 240, n), rng.uniform(0, 200, n)
+    z = 0.7 * x + 0.6 * np.sin(2 * np.pi * y / 10.0) + rng.normal(0, 0.03, n)
+    shrub = (x > 100) & (x < 160) & (rng.uniform(size=n) < share)
+    z[shrub] += rng.uniform(0.3, 1.2, shrub.sum())
+    return np.column_stack([x + corner[0], y + corner[1], z]), shrub
+
+
+def test_top_down_scans_keep_shrubs_over_the_ground_obstacles(rng, monkeypatch):
+    """The widened threshold and the local planes take shrubs up to 1.2 m over a steep sparse
+    slope the surface cannot follow (1,419 of 3,015 without the rule, 413 with it); the
+    ground keeps its recall (the ridges the surface undercuts have no terrain beneath them).
+    With the tile's corner at the origin too: a tile in local coordinates is not a scan."""
+    import o3d_terrain.segment as seg
+    for corner in ((1000.0, 2000.0), (0.0, 0.0)):
+        cloud, shrub = _shrubs_on_a_mountain(np.random.default_rng(0), corner=corner)
+        assert not seg.sensor_in_cloud(cloud)
+        scores = []
+        for rule in (True, False):
+            if not rule:
+                monkeypatch.setattr(seg, "over_terrain", lambda *a, **k: np.zeros(0, np.int64))
+            mask = np.zeros(len(cloud), bool)
+            mask[segment_terrain(cloud)[1]] = True
+            scores.append(((mask & ~shrub).sum() / (~shrub).sum(), (mask & shrub).sum()))
+            monkeypatch.undo()
+        (recall_with, shrubs_with), (recall_without, shrubs_without) = scores
+        assert shrubs_with < 0.2 * shrub.sum() and shrubs_with < 0.5 * shrubs_without
+        assert recall_with >= recall_without - 0.0005 and recall_with > 0.999
+
+
+def test_a_tile_around_the_origin_is_not_a_vehicle_scan():
+    """A top-down tile moved to local coordinates (centred at the origin) has as many points
+    per occupied cell near the origin as far from it; a lidar frame has many more near its
+    sensor, and keeps being a scan when cropped to its forward 60°."""
+    from o3d_terrain.segment import sensor_in_cloud
+    from o3d_terrain.synthetic import make_scene, sample_lidar
+    tile = _airborne_mounds().positions
+    assert not sensor_in_cloud(tile)
+    assert not sensor_in_cloud(tile - [*tile[:, :2].mean(axis=0), 0.0])
+    frame = sample_lidar(make_scene("hills", seed=0), seed=0).positions
+    assert sensor_in_cloud(frame)
+    ahead = frame[np.abs(np.arctan2(frame[:, 1], frame[:, 0])) < np.radians(30.0)]
+    assert sensor_in_cloud(ahead)

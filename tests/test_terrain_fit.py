@@ -646,12 +646,12 @@ def test_levelled_prior_keeps_the_compact_test_in_the_sensor_frame(rng):
     assert _level_plane(grid, (500.0, 0.0, 0.0)) is None  # sensor off the grid: as measured
 
 
-def test_a_top_down_scan_gets_the_finer_layout_and_follows_a_berm():
+def test_a_top_down_scan_gets_the_finer_layout_and_follows_a_berm(vehicle_scan):
     """From the air the 32-per-axis layout (1.4 m apart on the 40 m scene) undercuts the 1 m
     berm by 0.4 m along its crest; a top-down scan (no points near sensor_origin) gets up to
     TOP_DOWN_MAX_CONTROL_POINTS per axis and follows it. The same cloud with its sensor
-    inside it keeps the vehicle layout in the robust fit (the refit takes up to
-    REFINE_MAX_CONTROL_POINTS: o3d_terrain.refine)."""
+    inside it, read as a vehicle's scan, keeps the vehicle layout in the robust fit (the
+    refit takes up to REFINE_MAX_CONTROL_POINTS: o3d_terrain.refine)."""
     from o3d_terrain import fit_terrain
     from o3d_terrain.synthetic import make_scene, sample_airborne
     cloud = sample_airborne(make_scene("ditch_berm", seed=0, obstacles=False), seed=0)

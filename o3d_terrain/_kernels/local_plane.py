@@ -44,6 +44,8 @@ import math
 import numba
 import numpy as np
 
+from .grid import _eigenvector, _symmetric_eigenvalues
+
 #: cells per axis of the neighbour grid at most (the cell grows beyond ``radius`` to keep this)
 _MAX_CELLS = 4096.0
 #: sub-cells per side of a neighbour cell at most (:func:`_split`)
@@ -565,3 +567,160 @@ def column_spread(positions, heights, high, candidates, cell):
         c = int((positions[k, 0] - x_min) / side) * ny + int((positions[k, 1] - y_min) / side)
         out[i] = top[c] - low[c] if top[c] >= low[c] else 0.0
     return out
+
+
+@numba.njit(cache=True)
+def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane):
+    """For each candidate point i, how far the lowest ``terrain`` (N,) bool point j != i
+    within ``radius`` (x/y) of it lies below the plane through it with the slope (gx_i, gy_i):
+    min over j of (z_j - z_i) - (gx_i (x_j - x_i) + gy_i (y_j - y_i)) (negative: below), or
+    +inf where no terrain point lies within ``radius``. Where the candidate and those points
+    number at least ``min_plane``, the same is also measured with the slope of their own
+    plane (the least eigenvector of their covariance; a plane steeper than about 84 degrees
+    gives 0) and the larger of the two is kept: points on a face steeper than the slope the
+    caller gives lie along their own plane, not below it.
+
+    The neighbours are found in cells at least ``radius`` wide over the candidates' bounding
+    box grown by ``radius`` (:func:`_candidate_grid`), the terrain points of the candidates'
+    3 x 3 blocks only, gathered once in the order of their cells."""
+    m = candidates.shape[0]
+    out = np.full(m, np.inf)
+    if m == 0:
+        return out
+    x0, _, y0, _, side, nx, ny = _candidate_grid(positions, candidates, radius, radius)
+    wanted = np.zeros(nx * ny, np.bool_)
+    for k in range(m):
+        i = candidates[k]
+        cx = int((positions[i, 0] - x0) / side)
+        cy = int((positions[i, 1] - y0) / side)
+        for a in range(max(cx - 1, 0), min(cx + 2, nx)):
+            for b in range(max(cy - 1, 0), min(cy + 2, ny)):
+                wanted[a * ny + b] = True
+    start = np.zeros(nx * ny + 1, np.int64)
+    n = positions.shape[0]
+    for j in range(n):
+        if not terrain[j]:
+            continue
+        fx = (positions[j, 0] - x0) / side
+        fy = (positions[j, 1] - y0) / side
+        if fx >= 0.0 and fx < nx and fy >= 0.0 and fy < ny:
+            c = int(fx) * ny + int(fy)
+            if wanted[c]:
+                start[c + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(start[-1], np.int64)
+    for j in range(n):
+        if not terrain[j]:
+            continue
+        fx = (positions[j, 0] - x0) / side
+        fy = (positions[j, 1] - y0) / side
+        if fx >= 0.0 and fx < nx and fy >= 0.0 and fy < ny:
+            c = int(fx) * ny + int(fy)
+            if wanted[c]:
+                order[fill[c]] = j
+                fill[c] += 1
+    r2 = radius * radius
+    cov = np.empty((3, 3))
+    normal = np.empty(3)
+    near = np.empty(start[-1], np.int64)
+    for k in range(m):
+        i = candidates[k]
+        xi = positions[i, 0]
+        yi = positions[i, 1]
+        zi = positions[i, 2]
+        cx = int((xi - x0) / side)
+        cy = int((yi - y0) / side)
+        count = 0
+        least = np.inf
+        for a in range(max(cx - 1, 0), min(cx + 2, nx)):
+            for b in range(max(cy - 1, 0), min(cy + 2, ny)):
+                c = a * ny + b
+                for s in range(start[c], start[c + 1]):
+                    j = order[s]
+                    dx = positions[j, 0] - xi
+                    dy = positions[j, 1] - yi
+                    if j == i or dx * dx + dy * dy > r2:
+                        continue
+                    near[count] = j
+                    count += 1
+                    e = positions[j, 2] - zi - (gx[k] * dx + gy[k] * dy)
+                    least = min(least, e)
+        if count + 1 >= min_plane and least < 0.0:
+            # the neighbourhood's own plane (the candidate included), about the candidate
+            sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
+            for t in range(count):
+                j = near[t]
+                u = positions[j, 0] - xi
+                v = positions[j, 1] - yi
+                w = positions[j, 2] - zi
+                sx += u
+                sy += v
+                sz += w
+                sxx += u * u
+                sxy += u * v
+                sxz += u * w
+                syy += v * v
+                syz += v * w
+                szz += w * w
+            total = count + 1.0
+            mx, my, mz = sx / total, sy / total, sz / total
+            cov[0, 0] = sxx / total - mx * mx
+            cov[0, 1] = cov[1, 0] = sxy / total - mx * my
+            cov[0, 2] = cov[2, 0] = sxz / total - mx * mz
+            cov[1, 1] = syy / total - my * my
+            cov[1, 2] = cov[2, 1] = syz / total - my * mz
+            cov[2, 2] = szz / total - mz * mz
+            lowest, _ = _symmetric_eigenvalues(cov)
+            if _eigenvector(cov, lowest, normal):
+                if abs(normal[2]) < 0.1:  # a near-vertical plane: a face
+                    least = max(least, 0.0)
+                else:
+                    px = -normal[0] / normal[2]
+                    py = -normal[1] / normal[2]
+                    own = np.inf
+                    for t in range(count):
+                        j = near[t]
+                        e = positions[j, 2] - zi - (px * (positions[j, 0] - xi)
+                                                    + py * (positions[j, 1] - yi))
+                        own = min(own, e)
+                    least = max(least, own)
+        out[k] = least
+    return out
+
+
+@numba.njit(cache=True)
+def density_fall(positions, x, y, near_lo, near_hi, far_lo, far_hi, cell):
+    """(near, far, fall): the points in the annuli near_lo <= r < near_hi and far_lo <= r <
+    far_hi (x/y distance r from (x, y)) and the ratio of their points per occupied ``cell``
+    (square cells tiled from (x - far_hi, y - far_hi)): how much denser the nearer ring's
+    occupied cells are. +inf when the far ring holds no point, 0 when the near one holds none."""
+    n_side = int(2.0 * far_hi / cell) + 1
+    occupied = np.zeros(n_side * n_side, np.bool_)
+    counts = np.zeros(2, np.int64)
+    cells = np.zeros(2, np.int64)
+    x0 = x - far_hi
+    y0 = y - far_hi
+    for i in range(positions.shape[0]):
+        dx = positions[i, 0] - x
+        dy = positions[i, 1] - y
+        r2 = dx * dx + dy * dy
+        if r2 >= far_hi * far_hi:
+            continue
+        if r2 >= near_lo * near_lo and r2 < near_hi * near_hi:
+            ring = 0
+        elif r2 >= far_lo * far_lo:
+            ring = 1
+        else:
+            continue
+        c = int((positions[i, 0] - x0) / cell) * n_side + int((positions[i, 1] - y0) / cell)
+        counts[ring] += 1
+        if not occupied[c]:
+            occupied[c] = True
+            cells[ring] += 1
+    if counts[1] == 0:
+        return counts[0], counts[1], np.inf
+    if counts[0] == 0:
+        return counts[0], counts[1], 0.0
+    return counts[0], counts[1], (counts[0] / cells[0]) / (counts[1] / cells[1])
