@@ -22,7 +22,8 @@ from .ground_layer import default_layer
 from .locate import locate_sensor
 from .noise import RangeNoise
 from .segment import (AUTO_CENTRED_FACTOR, AUTO_THRESHOLD_FACTOR, AUTO_THRESHOLD_RANGE,
-                      FOOT_HEIGHT, FOOT_LINES, TerrainLabel, sensor_in_cloud)
+                      FOOT_HEIGHT, FOOT_LINES, TerrainLabel, line_spacing_finder,
+                      sensor_in_cloud)
 from .segment import auto_threshold as _auto_threshold
 from .spline import TerrainSurface
 from .stages.grid_quantize import GridQuantize
@@ -188,9 +189,11 @@ def _terrain_frame(cloud: Any, quantize: GridQuantize, terrain: RationalBSplineT
 
 
 def _array_fit(positions: np.ndarray, quantize: GridQuantize,
-               terrain: RationalBSplineTerrain) -> TerrainSurface:
+               terrain: RationalBSplineTerrain, line_spacing=None) -> TerrainSurface:
     """What ``terrain(quantize(frame))`` computes, on an array without a frame: the same
-    functions with the stages' options (the grid covers the extent computed once)."""
+    functions with the stages' options (the grid covers the extent computed once);
+    ``line_spacing``: the refit's scan-line spacing of the points
+    (:meth:`RationalBSplineTerrain.fit`)."""
     extent = _checked_region(positions, quantize.region)
     # the ground-layer statistics of the fit are gathered in the grid's pass over the points
     layer = default_layer(quantize.cell_size, noise_floor=terrain.noise_floor,
@@ -199,7 +202,8 @@ def _array_fit(positions: np.ndarray, quantize: GridQuantize,
     grid = quantize._guard(lambda: quantize.grid(positions, region=extent, layer=layer,
                                                  plane=terrain.cell_plane,
                                                  tilt_spread=terrain.noise_floor))
-    return terrain._guard(lambda: terrain.fit(grid, positions)).surface
+    return terrain._guard(lambda: terrain.fit(grid, positions,
+                                              line_spacing=line_spacing)).surface
 
 
 def auto_threshold(surface: TerrainSurface, positions: np.ndarray, *,
@@ -359,8 +363,13 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         foot_lines=foot_lines, line_of_sight=line_of_sight, low_returns=low_returns,
         ground_returns=ground_returns)
     if frame is None:  # numpy input: the stages' functions without a frame
-        surface = _array_fit(positions, quantize, terrain)
-        labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions))
+        # the points' scan-line spacing, found once for the refit's labels and the final ones
+        # (when both see the sensor at the same place)
+        spacing = line_spacing_finder(positions, segmenter.sensor_origin) \
+            if tuple(terrain.sensor_origin) == tuple(segmenter.sensor_origin) else None
+        surface = _array_fit(positions, quantize, terrain, spacing)
+        labels, _ = segmenter._guard(lambda: segmenter.label(surface, positions,
+                                                             line_spacing=spacing))
         return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
     frame = segmenter(_terrain_frame(frame, quantize, terrain))
     labels = frame.attribute(LABELS)

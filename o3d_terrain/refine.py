@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from .grid import MEASURED, HeightGrid, quantize_points
-from .segment import TerrainLabel, segment_points
+from .segment import TerrainLabel, line_spacing_finder, segment_points
 from .spline import GridBasis, TerrainSurface, clamped_knots
 from .terrain import LAYOUT_MAX_ASPECT, default_control_points, knot_densities
 from .threads import one_blas_thread
@@ -107,7 +107,8 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
                    smoothing: float, noise_floor: float, sensor_origin=(0.0, 0.0, 0.0),
                    cell_plane: bool = True, max_control_points: int | None = None,
                    repeats: int = REFINE_REPEATS, vehicle: bool = False,
-                   top_down: bool = False) -> tuple[TerrainSurface, int, int]:
+                   top_down: bool = False, line_spacing=None
+                   ) -> tuple[TerrainSurface, int, int]:
     """``(surface, cells, refits)``: the surface's layout refitted to the points ``positions``
     that the automatic labelling against ``surface`` calls terrain (module docstring), the
     number of grid cells that held terrain points in the last refit made, and how many refits
@@ -131,13 +132,19 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
     the control points under its terrain points only (:func:`supported_control_points`);
     top_down: the points are a top-down scan (an airborne tile), whose automatic layout also
     grows to about one control point per :data:`TOP_DOWN_SPAN_CELLS` cells of terrain points
-    (:func:`density_cap`)."""
+    (:func:`density_cap`); line_spacing: the
+    :func:`~o3d_terrain.segment.scan_line_spacing` of ``positions`` seen from
+    ``sensor_origin`` for the labels when the caller has it (a number, or a function that
+    finds it when first asked: :func:`~o3d_terrain.segment.line_spacing_finder`); None =
+    found once, when a refit's labels first need it."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
+    if line_spacing is None:  # the points' scan lines: the same for every refit's labels
+        line_spacing = line_spacing_finder(p, sensor_origin)
     refits, cells = 0, 0
     for _ in range(1 + max(0, int(repeats))):
         refined, got, move = _refit(surface, p, cell_size, smoothing, noise_floor,
                                     sensor_origin, cell_plane, max_control_points, vehicle,
-                                    top_down)
+                                    top_down, line_spacing)
         if refined is surface:  # too few terrain cells: the surface so far stays
             cells = cells if refits else got
             break
@@ -149,8 +156,8 @@ def refine_surface(surface: TerrainSurface, positions: np.ndarray, *, cell_size:
 
 def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: float,
            noise_floor: float, sensor_origin, cell_plane: bool,
-           max_control_points: int | None, vehicle: bool = False, top_down: bool = False
-           ) -> tuple[TerrainSurface, int, float]:
+           max_control_points: int | None, vehicle: bool = False, top_down: bool = False,
+           line_spacing=None) -> tuple[TerrainSurface, int, float]:
     """One refit of :func:`refine_surface`: ``(refined, cells, move)``, move the median of
     |refined - surface| (m) over at most :data:`STEEP_SAMPLE` of the refit's terrain cells
     (evenly picked); ``(surface, cells, 0.0)`` when too few cells held terrain points."""
@@ -162,7 +169,8 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
     # alone, whose precision the refit's points need (docs/algorithm.md, "The threshold on a
     # noisy ground")
     labels, _ = segment_points(surface, p, threshold=None, sensor_origin=sensor_origin,
-                               foot_height=0.0, line_of_sight=False, centred_threshold=False)
+                               foot_height=0.0, line_of_sight=False, centred_threshold=False,
+                               line_spacing=line_spacing)
     terrain = np.compress(labels == TerrainLabel.TERRAIN, p, axis=0)  # ~3x faster than p[mask]
     n0, n1 = surface.control_points.shape
     if len(terrain) == 0:

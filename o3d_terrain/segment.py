@@ -44,6 +44,7 @@ from .spline import TerrainSurface
 
 __all__ = ["SCAN_DENSITY_FALL", "TerrainLabel", "auto_range_coefficient", "auto_threshold",
            "earlier_returns", "heights_above_terrain", "keep_last_returns", "label_heights",
+           "line_spacing_finder",
            "mark_object_feet", "out_of_sight", "relabel_along_normal", "scan_line_spacing",
            "segment_points", "sensor_ground_gradient", "sensor_in_cloud", "thresholds",
            "widen_labels"]
@@ -407,6 +408,16 @@ def scan_line_spacing(positions, sensor_origin=(0.0, 0.0, 0.0)) -> float:
     return math.degrees(float(np.median(gaps)))
 
 
+def line_spacing_finder(positions, sensor_origin=(0.0, 0.0, 0.0)) -> Callable[[], float]:
+    """The :func:`scan_line_spacing` of ``positions`` seen from ``sensor_origin`` as a function
+    that finds it when first called and returns the same value after: the labellings of one
+    cloud (the refit's, :func:`o3d_terrain.refine.refine_surface`, and the Segmenter's that
+    follow it) take it as :func:`segment_points`' ``line_spacing``, so the spacing is found
+    once per cloud, and only when a labelling needs it."""
+    p = _positions(positions)
+    return functools.cache(lambda: scan_line_spacing(p, sensor_origin))
+
+
 def _grade_from_sensor_ground(surface: TerrainSurface, p: np.ndarray, h: np.ndarray,
                               threshold: float, sensor_origin):
     """The misfit's ``grade`` callable: |grad S - g0| at (x, y), g0 the
@@ -429,7 +440,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
                    foot_behind: float = FOOT_BEHIND,
                    foot_gap: float = FOOT_GAP,
                    line_of_sight: bool = True,
-                   centred_threshold: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                   centred_threshold: bool = True,
+                   line_spacing: float | Callable[[], float] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Labels (N,) uint8 :class:`TerrainLabel` values and heights above terrain (N,) float64.
 
     threshold: points higher than this above the surface are obstacles (m); None = from the
@@ -479,6 +492,10 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         alone (the refit's labels: they choose the points a surface is fitted to, where low
         clutter taken as terrain costs more than noisy ground left out; docs/algorithm.md,
         "The threshold on a noisy ground").
+    line_spacing: the :func:`scan_line_spacing` of ``positions`` seen from ``sensor_origin``
+        when the caller has it: a number, or a function that finds it when first asked
+        (:func:`line_spacing_finder`, which the caller may pass on to the next labelling of the
+        same points); None = found here, when needed.
     """
     problems = [m for m in (None if threshold is None
                             else _check("threshold", threshold, positive=True),
@@ -506,8 +523,11 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
     range_high = math.inf  # a range coefficient given by the caller grows without a ceiling
     use_misfit = threshold is None and misfit and isinstance(surface, TerrainSurface)
     block = block_size(surface) if use_misfit else 0.0
-    # scan_line_spacing of the cloud, found once when first asked
-    line_spacing = functools.cache(lambda: scan_line_spacing(p, sensor_origin))
+    # scan_line_spacing of the cloud, found once when first asked (or the caller's)
+    if line_spacing is None:
+        line_spacing = line_spacing_finder(p, sensor_origin)
+    elif not callable(line_spacing):
+        line_spacing = functools.partial(float, line_spacing)
 
     if threshold is None:
         threshold = auto_threshold(h, centred_factor=centred_factor)

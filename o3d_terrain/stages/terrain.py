@@ -196,12 +196,17 @@ class RationalBSplineTerrain(Stage):
         return frame
 
     def fit(self, grid: HeightGrid, positions: np.ndarray | None = None,
-            range_noise: RangeNoise | None = None) -> TerrainFit:
+            range_noise: RangeNoise | None = None, *, line_spacing=None) -> TerrainFit:
         """The fit of :meth:`run` on a height grid; ``positions`` (the points the grid was
         made from) give the ground-layer samples, the cells' planes with ``cell_plane`` when
         the grid was made without them, and, with a noise model (this stage's
         ``range_noise`` option, else ``range_noise``), the per-cell noise. The surface carries
-        the grid's cell size."""
+        the grid's cell size. ``line_spacing``: the
+        :func:`~o3d_terrain.segment.scan_line_spacing` of ``positions`` seen from this
+        stage's ``sensor_origin``, for the refit's labels, when the caller has it (a function
+        that finds it when first asked, :func:`~o3d_terrain.segment.line_spacing_finder`,
+        which the caller may pass on to the Segmenter's labels of the same points); not used
+        when the fit leaves low returns out (other points)."""
         if self.range_noise > 0:
             range_noise = RangeNoise(self.sensor_origin, self.range_noise)
         robust = positions is not None and self.method == "robust"
@@ -210,6 +215,8 @@ class RationalBSplineTerrain(Stage):
         low_returns = None
         if robust and not top_down and self.low_returns:
             grid, positions, low_returns = without_low_returns(grid, positions)
+            if low_returns:  # the caller's scan-line spacing is of the points before
+                line_spacing = None
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
@@ -287,7 +294,7 @@ class RationalBSplineTerrain(Stage):
             surface, positions, cell_size=grid.cell_size, smoothing=self.smoothing,
             noise_floor=self.noise_floor, sensor_origin=self.sensor_origin,
             cell_plane=self.cell_plane, max_control_points=most, vehicle=vehicle,
-            top_down=top_down)
+            top_down=top_down, line_spacing=line_spacing)
         return dataclasses.replace(fit, surface=refined, robust_surface=surface, refits=refits)
 
     @property
@@ -446,19 +453,21 @@ class Segmenter(Stage):
                f"; {int(earlier.sum())} earlier return(s) of a pulse, never terrain")
         )
 
-    def label(self, surface, positions: np.ndarray, *, earlier: np.ndarray | None = None
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def label(self, surface, positions: np.ndarray, *, earlier: np.ndarray | None = None,
+              line_spacing=None) -> tuple[np.ndarray, np.ndarray]:
         """Labels (N,) uint8 and heights above the terrain (N,) of (N, 3) positions: the
         rule of :meth:`run` (:func:`~o3d_terrain.segment.segment_points`); ``earlier``: (N,)
         bool, the points that are not the last return of their pulse
-        (:func:`~o3d_terrain.segment.earlier_returns`), which are then never TERRAIN."""
+        (:func:`~o3d_terrain.segment.earlier_returns`), which are then never TERRAIN;
+        ``line_spacing``: the scan-line spacing of ``positions`` seen from this stage's
+        ``sensor_origin`` when the caller has it (segment_points' ``line_spacing``)."""
         labels, heights = segment_points(
             surface, positions, threshold=self.threshold, below_threshold=self.below_threshold,
             range_coefficient=self.range_coefficient, sensor_origin=self.sensor_origin,
             misfit=self.misfit_threshold, along_normal=self.along_normal,
             foot_height=self.foot_height, foot_cell=self.foot_cell, foot_lines=self.foot_lines,
             foot_behind=self.foot_behind, foot_gap=self.foot_gap,
-            line_of_sight=self.line_of_sight)
+            line_of_sight=self.line_of_sight, line_spacing=line_spacing)
         if earlier is not None:
             keep_last_returns(labels, earlier)
         return labels, heights
