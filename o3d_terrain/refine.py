@@ -41,6 +41,7 @@ import math
 
 import numpy as np
 
+from ._kernels import terrain as _tk
 from .grid import MEASURED, HeightGrid, quantize_points
 from .segment import TerrainLabel, line_spacing_finder, segment_points
 from .spline import GridBasis, TerrainSurface, clamped_knots
@@ -185,12 +186,12 @@ def _refit(surface: TerrainSurface, p: np.ndarray, cell_size: float, smoothing: 
         return surface, int(cells.size), 0.0
     # eq. 1 about the cell's plane (about the mean where the plane is not significant: the
     # grid's level and plane_sample are then the mean and eq. 1's sample), at least the
-    # plane's height minus the noise floor
+    # plane's height minus the noise floor (at the measured cells only)
     if cell_plane:
-        sample = np.maximum(grid.plane_sample, grid.level - noise_floor)
+        sample = np.maximum(grid.plane_sample.ravel()[cells],
+                            grid.level.ravel()[cells] - noise_floor)
     else:
-        sample = np.maximum(grid.z, grid.mean - noise_floor)
-    sample = sample.ravel()[cells]
+        sample = np.maximum(grid.z.ravel()[cells], grid.mean.ravel()[cells] - noise_floor)
     x0, y0, z0 = surface.origin
     local = (region[0] - x0, region[1] - x0, region[2] - y0, region[3] - y0)
     layout, knots = (n0, n1), (surface.knots_x, surface.knots_y)
@@ -251,8 +252,10 @@ def supported_control_points(surface: TerrainSurface, grid: HeightGrid) -> int:
     spans). A cell within one span counts that span's control points, as its points would; a
     cell across a knot counts the spans on both sides, which its points may not all reach, so
     the count is never below that of the points themselves. The spans come from one search
-    per grid row and column (``np.searchsorted``), not one per point: 0.65 ms instead of
-    3.5 ms for the 68,000 terrain points of a KITTI frame."""
+    per grid row and column (``np.searchsorted``), not one per point, and the cells' spans
+    and their control points from one pass over the grid
+    (:func:`o3d_terrain._kernels.terrain.supported_count`): 0.12 ms instead of 3.5 ms for the
+    68,000 terrain points of a KITTI frame."""
     x0, y0, _ = surface.origin
     degree = surface.degree
     n0, n1 = surface.control_points.shape
@@ -265,17 +268,8 @@ def supported_control_points(surface: TerrainSurface, grid: HeightGrid) -> int:
 
     lo_x, hi_x = reach(surface.knots_x, grid.x_centers - x0, n0 - 1)
     lo_y, hi_y = reach(surface.knots_y, grid.y_centers - y0, n1 - 1)
-    ix, iy = np.nonzero(grid.count > 0)
-    spans = np.zeros((n0, n1), bool)  # the spans a cell reaches, by their last control point
-    if ix.size:
-        for a in range(int((hi_x - lo_x).max()) + 1):
-            for b in range(int((hi_y - lo_y).max()) + 1):
-                spans[np.minimum(lo_x[ix] + a, hi_x[ix]), np.minimum(lo_y[iy] + b, hi_y[iy])] = True
-    under = np.zeros((n0, n1), bool)
-    for a in range(degree + 1):
-        for b in range(degree + 1):
-            under[:n0 - a, :n1 - b] |= spans[a:, b:]
-    return int(under.sum())
+    return int(_tk.supported_count(np.ascontiguousarray(grid.count), lo_x, hi_x, lo_y, hi_y,
+                                   n0, n1, degree))
 
 
 def refit_cap(most: int, terrain_points: int) -> int:

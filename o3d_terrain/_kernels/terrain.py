@@ -528,3 +528,30 @@ def long_runs(cells, m0, m1, min_span):
                 out[members[q]] = True
         runs += 1
     return out
+
+
+@numba.njit(cache=True)
+def supported_count(count, lo_x, hi_x, lo_y, hi_y, n0, n1, degree):
+    """How many control points of an (n0, n1) layout of ``degree`` lie under the cells with
+    ``count`` > 0 of an (nx, ny) grid: per such cell (ix, iy), the knot spans a .. b of
+    ``lo_x[ix]`` .. ``hi_x[ix]`` and ``lo_y[iy]`` .. ``hi_y[iy]`` (a span by its last control
+    point), and per span its (degree + 1)^2 control points (last - degree .. last per axis)."""
+    spans = np.zeros((n0, n1), np.bool_)
+    for ix in range(count.shape[0]):
+        for iy in range(count.shape[1]):
+            if count[ix, iy] > 0:
+                for a in range(lo_x[ix], hi_x[ix] + 1):
+                    for b in range(lo_y[iy], hi_y[iy] + 1):
+                        spans[a, b] = True
+    under = np.zeros((n0, n1), np.bool_)
+    for a in range(n0):
+        for b in range(n1):
+            if spans[a, b]:
+                for i in range(max(a - degree, 0), a + 1):
+                    for j in range(max(b - degree, 0), b + 1):
+                        under[i, j] = True
+    total = 0
+    for a in range(n0):
+        for b in range(n1):
+            total += under[a, b]
+    return total
