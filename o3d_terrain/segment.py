@@ -44,10 +44,9 @@ from .spline import TerrainSurface
 
 __all__ = ["SCAN_DENSITY_FALL", "TerrainLabel", "auto_range_coefficient", "auto_threshold",
            "earlier_returns", "heights_above_terrain", "keep_last_returns", "label_heights",
-           "line_spacing_finder",
-           "mark_object_feet", "out_of_sight", "relabel_along_normal", "scan_line_spacing",
-           "segment_points", "sensor_ground_gradient", "sensor_in_cloud", "thresholds",
-           "widen_labels"]
+           "line_spacing_finder", "mark_object_feet", "out_of_sight", "relabel_along_normal",
+           "scan_line_spacing", "segment_points", "sensor_ground_gradient", "sensor_in_cloud",
+           "thresholds", "widen_labels"]
 
 #: the automatic obstacle threshold: this many robust noise scales, clipped to [low, high] m.
 #: The floor covers the terrain's own relief inside a cell, which the surface of 0.5 m cells
