@@ -468,10 +468,11 @@ def test_eval_segmentation_checks_option_values_before_reading(tmp_path, capsys)
         check_segment_options(cel_size=1)
     _fake_kitti(tmp_path / "seq", frames=2, points=16)
     # one error before any frame, not a frame skipped per frame
-    assert _cli(["eval", "segmentation", str(tmp_path / "seq"), "--option", "cell_size=-1"]) == 1
+    # a bad value is bad usage (exit 2, as a misspelt name), named against --option
+    assert _cli(["eval", "segmentation", str(tmp_path / "seq"), "--option", "cell_size=-1"]) == 2
     captured = capsys.readouterr()
-    assert "GridQuantize: The 'cell_size' option of GridQuantize must be a float > 0" in \
-        captured.err
+    assert "--option: GridQuantize: The 'cell_size' option of GridQuantize must be a float > 0" \
+        in captured.err
     assert "skipped" not in captured.out + captured.err
     assert "evaluating" not in captured.err
 
@@ -484,10 +485,10 @@ def test_eval_terrain_checks_option_values_before_fitting(capsys):
         check_fit_options(knots="adaptve")
     with pytest.raises(TypeError, match="foot_height"):
         check_fit_options(foot_height=0.3)  # a Segmenter option: not fit_terrain's
-    assert _cli(["eval", "terrain", "synthetic:hills,ramp", "--option", "cell_size=-1"]) == 1
+    assert _cli(["eval", "terrain", "synthetic:hills,ramp", "--option", "cell_size=-1"]) == 2
     captured = capsys.readouterr()
-    assert "GridQuantize: The 'cell_size' option of GridQuantize must be a float > 0" in \
-        captured.err
+    assert "--option: GridQuantize: The 'cell_size' option of GridQuantize must be a float > 0" \
+        in captured.err
     assert "skipped" not in captured.out + captured.err
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import ConfigError, Problem
+from ..errors import ConfigError, InputError, Problem
 
 EXIT_OK, EXIT_FAILURE = 0, 1
 
@@ -149,6 +149,15 @@ def _check_option_names(options: dict[str, Any], function, where: str) -> None:
         raise ConfigError(problems)
 
 
+def _option_values(make, options: dict[str, Any]):
+    """``make(**options)``, a bad option value reported as usage (exit 2) against --option."""
+    try:
+        return make(**options)
+    except InputError as exc:
+        raise ConfigError(Problem("--option", str(exc),
+                                  "fix the value, e.g. --option cell_size=0.25")) from exc
+
+
 # ---------------------------------------------------------------------------------------------
 # segmentation
 
@@ -180,7 +189,8 @@ def run_segmentation_command(args: argparse.Namespace) -> int:
     if labels is not None and not args.json:
         print(f"label set {labels.describe()}", file=sys.stderr)
     # our options checked (names and values) before any data set is read
-    ours_method = ours(**options) if any(m in (OURS, "ours") for m in methods) else None
+    ours_method = (_option_values(ours, options) if any(m in (OURS, "ours") for m in methods)
+                   else None)
     reports = []
     for dataset in args.datasets:
         for method in methods:
@@ -283,7 +293,7 @@ def run_terrain_command(args: argparse.Namespace) -> int:
         from ..api import fit_terrain
 
         _check_option_names(options, fit_terrain, "--option")
-    fitter = default_fitter(**options)
+    fitter = _option_values(default_fitter, options)
     source = str(args.source)
     truth_flags = [flag for flag, name in (("--truth-origin", "truth_origin"),
                                            ("--truth-cell-size", "truth_cell_size"),
