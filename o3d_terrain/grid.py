@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import output_path
+from ._files import open_npz, output_path
 from ._kernels import grid as _grid
 from .errors import InputError
 
@@ -121,7 +121,8 @@ class HeightGrid:
 
     @classmethod
     def load(cls, path: str | Path) -> "HeightGrid":
-        with np.load(path) as data:
+        """The grid :meth:`save` wrote (``path`` with or without its ``.npz``)."""
+        with open_npz(path, "HeightGrid") as data:
             extremes = [data[k] if k in data.files else None
                         for k in ("lowest", "highest", "mean")]
             return cls(float(data["x_min"]), float(data["y_min"]), float(data["cell_size"]),

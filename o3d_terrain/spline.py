@@ -29,7 +29,7 @@ import numba
 import numpy as np
 from scipy.linalg import get_lapack_funcs
 
-from ._files import output_path
+from ._files import open_npz, output_path
 from ._kernels import bspline as _bs
 from ._kernels import terrain as _tk
 from .errors import InputError
@@ -320,13 +320,9 @@ class TerrainSurface:
 
     @classmethod
     def load(cls, path: str | Path) -> "TerrainSurface":
+        """The surface :meth:`save` wrote (``path`` with or without its ``.npz``)."""
         try:
-            data = np.load(path)
-            if not isinstance(data, np.lib.npyio.NpzFile):
-                raise InputError(f"{path}: not a TerrainSurface file (not an .npz archive)")
-            with data:
-                if "kind" not in data or str(data["kind"]) != "TerrainSurface":
-                    raise InputError(f"{path}: not a TerrainSurface file (no kind='TerrainSurface')")
+            with open_npz(path, "TerrainSurface") as data:
                 cell_size = float(data["cell_size"]) if "cell_size" in data else None
                 return cls(int(data["degree"]), data["knots_x"], data["knots_y"],
                            data["control_points"], data["weights"],
@@ -384,10 +380,9 @@ class SlopeGrid:
 
     @classmethod
     def load(cls, path: str | Path) -> "SlopeGrid":
+        """The grid :meth:`save` wrote (``path`` with or without its ``.npz``)."""
         try:
-            with np.load(path) as data:
-                if "kind" not in data or str(data["kind"]) != "SlopeGrid":
-                    raise InputError(f"{path}: not a SlopeGrid file (no kind='SlopeGrid')")
+            with open_npz(path, "SlopeGrid") as data:
                 return cls(data["slope_deg"], data["x_centers"], data["y_centers"],
                            float(data["cell_size"]))
         except (OSError, ValueError, KeyError) as exc:

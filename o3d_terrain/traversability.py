@@ -38,7 +38,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ._files import output_path
+from ._files import open_npz, output_path
 from ._kernels import bspline as _bs
 from ._kernels import obstacles as _k
 from .errors import InputError, checked_keywords
@@ -326,9 +326,7 @@ class CostMap:
         import json
 
         try:
-            with np.load(path) as data:
-                if "kind" not in data or str(data["kind"]) != "CostMap":
-                    raise InputError(f"{path}: not a CostMap file (no kind='CostMap')")
+            with open_npz(path, "CostMap") as data:
                 return cls(float(data["x_min"]), float(data["y_min"]), float(data["cell_size"]),
                            data["cost"], data["state"], data["slope_deg"], data["step_height"],
                            data["roughness"],

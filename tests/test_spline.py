@@ -301,6 +301,28 @@ def test_save_load_round_trip(tmp_path):
     assert TerrainSurface.load(tmp_path / "u.npz").cell_size == 0.25
 
 
+def test_load_takes_the_path_save_was_given_and_names_wrong_files(tmp_path):
+    """save("x") writes x.npz (numpy's rule); load("x") reads it back. A text file, a missing
+    file and another product's archive each get an InputError naming the file and why."""
+    from o3d_terrain.grid import HeightGrid
+    from o3d_terrain.spline import SlopeGrid
+
+    s = random_surface(np.random.default_rng(3))
+    s.save(tmp_path / "surface")
+    assert (tmp_path / "surface.npz").exists()
+    assert repr(TerrainSurface.load(tmp_path / "surface")) == repr(s)
+    (tmp_path / "notes.txt").write_text("not an archive\n")
+    with pytest.raises(InputError, match="notes.txt: not a TerrainSurface file"):
+        TerrainSurface.load(tmp_path / "notes.txt")
+    with pytest.raises(InputError, match="missing: no such file"):
+        TerrainSurface.load(tmp_path / "missing")
+    SlopeGrid(np.zeros((2, 2)), np.arange(2.0), np.arange(2.0), 1.0).save(tmp_path / "slope")
+    with pytest.raises(InputError, match="not a TerrainSurface file .it holds a SlopeGrid"):
+        TerrainSurface.load(tmp_path / "slope.npz")
+    with pytest.raises(InputError, match="not a HeightGrid file .it holds a TerrainSurface"):
+        HeightGrid.load(tmp_path / "surface")
+
+
 @pytest.mark.parametrize("uneven", [False, True])
 @pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
 def test_span_power_basis_equals_scipy_basis_functions(degree, uneven):
