@@ -175,10 +175,22 @@ def _checked_region(positions: np.ndarray, region):
     if region is not None:
         return region
     extent = region_of(positions)  # raises when no point is finite
-    if not (extent[1] > extent[0] and extent[3] > extent[2]):
+    if not (extent[1] > extent[0] and extent[3] > extent[2]) or _collinear(positions):
         raise InputError(f"the cloud's x/y extent {extent} is degenerate (all points on a "
                          f"line or one spot); give a region")
     return extent
+
+
+def _collinear(positions: np.ndarray, sample: int = 2000) -> bool:
+    """Whether the points lie on one line in x/y (at any angle): the spread across their
+    principal axis, from every k-th finite point (at most ``sample``), under 1e-9 of the
+    spread along it."""
+    p = positions[:: max(1, len(positions) // sample), :2]
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < 3:
+        return False
+    smallest, largest = np.linalg.eigvalsh(np.cov(p.T, bias=True))
+    return bool(smallest <= 1e-18 * largest)
 
 
 def _terrain_frame(cloud: Any, quantize: GridQuantize, terrain: RationalBSplineTerrain) -> Frame:

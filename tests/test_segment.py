@@ -321,6 +321,12 @@ def test_bad_clouds_give_clear_errors():
         fit_terrain(np.random.default_rng(0).normal(size=(100, 3)), region=(0, 0, -1, 1))
     with pytest.raises(InputError, match="degenerate"):
         fit_terrain(np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)])
+    # a line at any angle, not only along an axis; a thin strip along it is a cloud
+    t = np.arange(100.0)
+    with pytest.raises(InputError, match="degenerate"):
+        segment_terrain(np.c_[t, 0.5 * t + 3.0, 0.1 * t])
+    strip = np.c_[t, 0.5 * t + np.random.default_rng(1).normal(0, 0.05, 100), 0.1 * t]
+    assert len(segment_terrain(strip)[1]) > 90
     with pytest.raises(InputError, match="too few valid cells"):
         fit_terrain(np.array([[0, 0, 0], [10, 10, 0.0]]))
     # an organised scan (rows, columns, xyz): the error says how to pass it
