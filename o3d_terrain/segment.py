@@ -174,20 +174,22 @@ SENSOR_GROUND_RADIUS = 15.0
 #: ... when at least this many of them lie there (otherwise against the cloud's z axis)
 SENSOR_GROUND_MIN_POINTS = 100
 #: a scan made from ``sensor_origin`` (a lidar's, a stereo camera's) is denser near it: its
-#: points per occupied SCAN_CELL (m) cell fall with range, from the ring SCAN_NEAR to the ring
-#: SCAN_FAR (m), by at least this factor (3.7 or more on every vehicle frame measured:
-#: SemanticKITTI at 64, 32 and 16 lines, cropped; the synthetic lidars, mounted high, low,
-#: pitched, rolled, 16 lines; solid-state lidars and stereo; the `dem.tif` sites; the pit),
-#: while a top-down tile's stay level (2.7 at most, the LAS tiles, the `dem.tif` airborne
-#: strips and the synthetic ones moved around the origin): a tile in local coordinates around
-#: the origin is not a vehicle's scan (docs/algorithm.md, "A tile around the origin")
+#: points per square metre fall with range, from the ring SCAN_NEAR to the ring SCAN_FAR (m),
+#: by at least this factor (5.1 or more on every vehicle frame measured: SemanticKITTI at 64,
+#: 32 and 16 lines, cropped; the synthetic lidars, mounted high, low, pitched, rolled, 16
+#: lines; solid-state lidars and stereo; the `dem.tif` sites; the pit), while a top-down
+#: tile's stay level (0.8-1.5 for the LAS tiles and the `dem.tif` airborne strips centred at
+#: the origin): a tile in local coordinates around the origin is not a vehicle's scan
+#: (docs/algorithm.md, "A tile around the origin"). A tile narrower than about 45 m does not
+#: fill the far ring and still reads as a scan.
 SCAN_DENSITY_FALL = 3.2
 SCAN_NEAR = (2.0, 10.0)
 SCAN_FAR = (15.0, 40.0)
-SCAN_CELL = 2.0
 #: ... tested only when both rings hold at least this many points (a sensor mounted high sees
 #: no ground near it; a small tile does not reach the far ring): fewer keep the scan a vehicle's
 SCAN_RING_MIN_POINTS = 50
+#: ... counted over every k-th point, k = max(1, N // SCAN_SAMPLE)
+SCAN_SAMPLE = 20_000
 
 
 class TerrainLabel(IntEnum):
@@ -371,15 +373,18 @@ def sensor_in_cloud(positions, sensor_origin=(0.0, 0.0, 0.0), *,
     ``sensor_origin`` and the scan looks made from there: a vehicle's lidar or stereo camera
     scans the ground around it; an airborne or photogrammetric tile in projected coordinates
     has no points near the default origin (the scan is top-down), and one moved to local
-    coordinates around the origin has as many points per occupied cell near it as far from it
+    coordinates around the origin has as many points per square metre near it as far from it
     (:data:`SCAN_DENSITY_FALL`, where both rings hold :data:`SCAN_RING_MIN_POINTS`)."""
     p = _positions(positions)
     x, y = float(sensor_origin[0]), float(sensor_origin[1])
     if _lp.count_within(p, x, y, float(radius), int(min_points)) < min_points:
         return False
-    near, far, fall = _lp.density_fall(p, x, y, *map(float, SCAN_NEAR), *map(float, SCAN_FAR),
-                                       float(SCAN_CELL))
-    return bool(min(near, far) < SCAN_RING_MIN_POINTS or fall >= SCAN_DENSITY_FALL)
+    step = max(1, len(p) // SCAN_SAMPLE)
+    near, far = _lp.ring_counts(p, x, y, *map(float, SCAN_NEAR), *map(float, SCAN_FAR), step)
+    if step * min(near, far) < SCAN_RING_MIN_POINTS:
+        return True
+    (a, b), (c, d) = SCAN_NEAR, SCAN_FAR
+    return bool(near * (d * d - c * c) >= SCAN_DENSITY_FALL * far * (b * b - a * a))
 
 
 def scan_line_spacing(positions, sensor_origin=(0.0, 0.0, 0.0)) -> float:

@@ -538,15 +538,21 @@ def test_top_down_scans_keep_shrubs_over_the_ground_obstacles(rng, monkeypatch):
         assert recall_with >= recall_without - 0.0005 and recall_with > 0.999
 
 
-def test_a_tile_around_the_origin_is_not_a_vehicle_scan():
-    """A top-down tile moved to local coordinates (centred at the origin) has as many points
-    per occupied cell near the origin as far from it; a lidar frame has many more near its
-    sensor, and keeps being a scan when cropped to its forward 60°."""
+def test_a_tile_around_the_origin_is_not_a_vehicle_scan(rng):
+    """A top-down tile moved to local coordinates (centred at the origin, or its corner on
+    it) has as many points per square metre near the origin as far from it; a lidar frame
+    has many more near its sensor, and keeps being a scan when cropped to its forward 60°.
+    A tile too small to fill the far ring (the 40 m synthetic strip) still reads as a scan."""
     from o3d_terrain.segment import sensor_in_cloud
     from o3d_terrain.synthetic import make_scene, sample_lidar
-    tile = _airborne_mounds().positions
+    tile = np.column_stack([rng.uniform(-60, 60, 60_000), rng.uniform(-50, 50, 60_000),
+                            rng.normal(0, 0.05, 60_000)])
     assert not sensor_in_cloud(tile)
-    assert not sensor_in_cloud(tile - [*tile[:, :2].mean(axis=0), 0.0])
+    assert not sensor_in_cloud(tile - [-60.0, -50.0, 0.0])
+    assert not sensor_in_cloud(tile + [1000.0, 0.0, 0.0])
+    strip = _airborne_mounds().positions
+    assert not sensor_in_cloud(strip)
+    assert sensor_in_cloud(strip - [*strip[:, :2].mean(axis=0), 0.0])
     frame = sample_lidar(make_scene("hills", seed=0), seed=0).positions
     assert sensor_in_cloud(frame)
     ahead = frame[np.abs(np.arctan2(frame[:, 1], frame[:, 0])) < np.radians(30.0)]

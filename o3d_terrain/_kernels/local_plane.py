@@ -691,36 +691,17 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
 
 
 @numba.njit(cache=True)
-def density_fall(positions, x, y, near_lo, near_hi, far_lo, far_hi, cell):
-    """(near, far, fall): the points in the annuli near_lo <= r < near_hi and far_lo <= r <
-    far_hi (x/y distance r from (x, y)) and the ratio of their points per occupied ``cell``
-    (square cells tiled from (x - far_hi, y - far_hi)): how much denser the nearer ring's
-    occupied cells are. +inf when the far ring holds no point, 0 when the near one holds none."""
-    n_side = int(2.0 * far_hi / cell) + 1
-    occupied = np.zeros(n_side * n_side, np.bool_)
-    counts = np.zeros(2, np.int64)
-    cells = np.zeros(2, np.int64)
-    x0 = x - far_hi
-    y0 = y - far_hi
-    for i in range(positions.shape[0]):
+def ring_counts(positions, x, y, near_lo, near_hi, far_lo, far_hi, step):
+    """(near, far): how many of every ``step``-th point lie in the annuli near_lo <= r <
+    near_hi and far_lo <= r < far_hi (x/y distance r from (x, y))."""
+    near = 0
+    far = 0
+    for i in range(0, positions.shape[0], step):
         dx = positions[i, 0] - x
         dy = positions[i, 1] - y
         r2 = dx * dx + dy * dy
-        if r2 >= far_hi * far_hi:
-            continue
         if r2 >= near_lo * near_lo and r2 < near_hi * near_hi:
-            ring = 0
-        elif r2 >= far_lo * far_lo:
-            ring = 1
-        else:
-            continue
-        c = int((positions[i, 0] - x0) / cell) * n_side + int((positions[i, 1] - y0) / cell)
-        counts[ring] += 1
-        if not occupied[c]:
-            occupied[c] = True
-            cells[ring] += 1
-    if counts[1] == 0:
-        return counts[0], counts[1], np.inf
-    if counts[0] == 0:
-        return counts[0], counts[1], 0.0
-    return counts[0], counts[1], (counts[0] / cells[0]) / (counts[1] / cells[1])
+            near += 1
+        elif r2 >= far_lo * far_lo and r2 < far_hi * far_hi:
+            far += 1
+    return near, far
