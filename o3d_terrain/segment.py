@@ -174,22 +174,26 @@ SENSOR_GROUND_RADIUS = 15.0
 #: ... when at least this many of them lie there (otherwise against the cloud's z axis)
 SENSOR_GROUND_MIN_POINTS = 100
 #: a scan made from ``sensor_origin`` (a lidar's, a stereo camera's) is denser near it: its
-#: points per square metre fall with range, from the ring SCAN_NEAR to the ring SCAN_FAR (m),
-#: by at least this factor (5.1 or more on every vehicle frame measured: SemanticKITTI at 64,
-#: 32 and 16 lines, cropped; the synthetic lidars, mounted high, low, pitched, rolled, 16
-#: lines; solid-state lidars and stereo; the `dem.tif` sites; the pit), while a top-down
-#: tile's stay level (0.8-1.5 for the LAS tiles and the `dem.tif` airborne strips centred at
-#: the origin): a tile in local coordinates around the origin is not a vehicle's scan
-#: (docs/algorithm.md, "A tile around the origin"). A tile narrower than about 45 m does not
-#: fill the far ring and still reads as a scan.
-SCAN_DENSITY_FALL = 3.2
-SCAN_NEAR = (2.0, 10.0)
-SCAN_FAR = (15.0, 40.0)
-#: ... tested only when both rings hold at least this many points (a sensor mounted high sees
-#: no ground near it; a small tile does not reach the far ring): fewer keep the scan a vehicle's
+#: points per square metre fall with range, from the ring SCAN_NEAR to the ring SCAN_FAR (m,
+#: beyond the first points: a sensor mounted high sees no ground within metres of it), by at
+#: least this factor (4.0 or more on every vehicle frame measured: SemanticKITTI at 64, 32
+#: and 16 lines, cropped, tilted; the synthetic lidars, mounted high, low, pitched, rolled,
+#: 16 lines; solid-state lidars and stereo; the `dem.tif` sites; the pit; a cab 4 or 6 m over
+#: a raised road), while a top-down tile's stay level (1.5 at most for the LAS tiles and the
+#: `dem.tif` airborne strips centred at the origin): a tile in local coordinates around the
+#: origin is not a vehicle's scan (docs/algorithm.md, "A tile around the origin"). A tile
+#: narrower than about 50 m does not fill the far ring and still reads as a scan.
+SCAN_DENSITY_FALL = 2.5
+SCAN_NEAR = (0.0, 8.0)
+SCAN_FAR = (13.0, 38.0)
+#: ... the rings measured from where the first SCAN_FIRST of the points within reach lie
+SCAN_FIRST = 0.002
+#: ... tested only when both rings hold at least this many points (a small tile does not
+#: reach the far ring): fewer keep the scan a vehicle's
 SCAN_RING_MIN_POINTS = 50
-#: ... counted over every k-th point, k = max(1, N // SCAN_SAMPLE)
+#: ... counted over every k-th point, k = max(1, N // SCAN_SAMPLE), in 0.5 m bins of range
 SCAN_SAMPLE = 20_000
+_SCAN_BIN = 0.5
 
 
 class TerrainLabel(IntEnum):
@@ -380,11 +384,23 @@ def sensor_in_cloud(positions, sensor_origin=(0.0, 0.0, 0.0), *,
     if _lp.count_within(p, x, y, float(radius), int(min_points)) < min_points:
         return False
     step = max(1, len(p) // SCAN_SAMPLE)
-    near, far = _lp.ring_counts(p, x, y, *map(float, SCAN_NEAR), *map(float, SCAN_FAR), step)
+    bins = int(round(2.0 * (radius + SCAN_FAR[1]) / _SCAN_BIN))  # the rings' reach at most
+    counts = _lp.range_histogram(p, x, y, step, _SCAN_BIN, bins)
+    total = np.cumsum(counts)
+    first = int(np.searchsorted(total, SCAN_FIRST * total[-1]))  # where the points start
+    (a, b), (c, d) = SCAN_NEAR, SCAN_FAR
+    start = first * _SCAN_BIN
+
+    def ring(lo, hi):  # points in [start + lo, start + hi), whole bins
+        return int(counts[first + int(round(lo / _SCAN_BIN)):
+                          first + int(round(hi / _SCAN_BIN))].sum())
+
+    near, far = ring(a, b), ring(c, d)
     if step * min(near, far) < SCAN_RING_MIN_POINTS:
         return True
-    (a, b), (c, d) = SCAN_NEAR, SCAN_FAR
-    return bool(near * (d * d - c * c) >= SCAN_DENSITY_FALL * far * (b * b - a * a))
+    area_near = (start + b) ** 2 - (start + a) ** 2
+    area_far = (start + d) ** 2 - (start + c) ** 2
+    return bool(near * area_far >= SCAN_DENSITY_FALL * far * area_near)
 
 
 def scan_line_spacing(positions, sensor_origin=(0.0, 0.0, 0.0)) -> float:

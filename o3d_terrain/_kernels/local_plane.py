@@ -691,17 +691,15 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
 
 
 @numba.njit(cache=True)
-def ring_counts(positions, x, y, near_lo, near_hi, far_lo, far_hi, step):
-    """(near, far): how many of every ``step``-th point lie in the annuli near_lo <= r <
-    near_hi and far_lo <= r < far_hi (x/y distance r from (x, y))."""
-    near = 0
-    far = 0
+def range_histogram(positions, x, y, step, width, bins):
+    """Counts of every ``step``-th point by horizontal distance from (x, y), in ``bins`` bins
+    of ``width`` (m) from 0; farther points are not counted."""
+    counts = np.zeros(bins, np.int64)
+    reach = width * bins
     for i in range(0, positions.shape[0], step):
         dx = positions[i, 0] - x
         dy = positions[i, 1] - y
         r2 = dx * dx + dy * dy
-        if r2 >= near_lo * near_lo and r2 < near_hi * near_hi:
-            near += 1
-        elif r2 >= far_lo * far_lo and r2 < far_hi * far_hi:
-            far += 1
-    return near, far
+        if r2 < reach * reach:
+            counts[int(math.sqrt(r2) / width)] += 1
+    return counts
