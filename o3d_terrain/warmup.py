@@ -67,10 +67,12 @@ def _cache_dir(dispatchers) -> str | None:
 
 def warm_up() -> WarmupReport:
     """Run every default path once on small generated clouds (a 32-beam lidar and a stereo
-    camera over the off-road scene): ``segment_terrain`` on an array and on an Open3D cloud,
-    and on a scan moved into a map frame (its sensor found from the scan),
-    the stage chain with obstacles and a cost map, the stereo chain with its range-dependent
-    noise, and the paper's fit. Returns the :class:`WarmupReport`."""
+    camera over the off-road scene, an airborne strip over a forested hillside):
+    ``segment_terrain`` on an array and on an Open3D cloud, and on a scan moved into a map
+    frame (its sensor found from the scan), the stage chain with obstacles and a cost map, the
+    stereo chain with its range-dependent noise, the paper's fit, and a top-down tile in
+    projected coordinates through the LAS pipeline's stages and rasters
+    (:func:`_top_down_tile`). Returns the :class:`WarmupReport`."""
     import open3d as o3d
 
     from .api import fit_terrain, segment_terrain
@@ -114,10 +116,59 @@ def warm_up() -> WarmupReport:
         {"type": "SlopeEstimator"},
         {"type": "Segmenter", "threshold": 0.2, "range_coefficient": 0.0005}]}).run()
     steps.append("stereo stage chain")
+    _top_down_tile()
+    steps.append("top-down tile")
     found = kernels()
     ready = tuple(sorted(k for k, d in found.items() if d.signatures))
     return WarmupReport(time.perf_counter() - start, ready, _cache_dir(found.values()),
                         tuple(steps))
+
+
+#: the stages of the packaged LAS pipeline (pipelines/las_terrain.yaml), which
+#: :func:`_top_down_tile` runs
+_TOP_DOWN_STAGES = ({"type": "GridQuantize", "cell_size": 1.0},
+                   {"type": "RationalBSplineTerrain"},
+                   {"type": "SlopeEstimator", "cell_size": 1.0},
+                   {"type": "Segmenter"})
+
+
+def _top_down_tile() -> None:
+    """The top-down path (an airborne LAS tile in projected coordinates, far from the
+    origin: no sensor in the cloud) on two generated strips over a forested hillside, one as
+    it is and one with ridges the surface cannot follow (the misfit's widened blocks): each
+    with the attributes ``read_cloud`` gives a LAS tile (classes, intensities, return
+    numbers) through the LAS pipeline's stages (pipelines/las_terrain.yaml) and its rasters
+    (:func:`o3d_terrain.raster.terrain_raster`, what ``WriteRaster`` computes), and through
+    ``segment_terrain`` as an array and as an Open3D cloud."""
+    from .api import segment_terrain
+    from .frame import LABELS, NUMBER_OF_RETURNS, RETURN_NUMBERS, cloud_from_numpy
+    from .pipeline import parse_pipeline
+    from .raster import LAYERS, terrain_raster
+    from .segment import TerrainLabel
+    from .synthetic import make_scene, sample_airborne
+
+    scene = make_scene("forest", seed=0, region=(-60.0, 60.0, -50.0, 50.0))
+    tile = sample_airborne(scene, density=3.0, offset=(6.3e5, 4.8e6, 120.0), seed=0)
+    for ridges in (0.0, 0.6):
+        positions = np.array(tile.positions, dtype=np.float64)
+        # ridges and gullies 10 m apart that the automatic layout cannot follow
+        positions[:, 2] += ridges * np.sin(2.0 * np.pi * positions[:, 1] / 10.0)
+        n = len(positions)
+        # every tenth pulse gave two returns, both kept (the first never terrain)
+        number_of_returns = np.where(np.arange(n) % 10 == 0, 2, 1).astype(np.int32)
+        return_numbers = np.ones(n, np.int32)
+        return_numbers[np.arange(n) % 20 == 0] = 2
+        cloud = cloud_from_numpy(
+            positions, classification=np.ones(n, np.int32),
+            intensities=np.full(n, 100.0, np.float32),
+            **{RETURN_NUMBERS: return_numbers, NUMBER_OF_RETURNS: number_of_returns})
+        frame = parse_pipeline({"stages": list(_TOP_DOWN_STAGES)}).run(cloud).frame
+        terrain = frame.positions[np.asarray(frame.attribute(LABELS)) == TerrainLabel.TERRAIN]
+        for layer in LAYERS:  # WriteRaster's DTM and slope map, without the GeoTIFF file
+            terrain_raster(frame.product("surface"), cell_size=1.0, layer=layer,
+                           support=terrain)
+        segment_terrain(positions)
+        segment_terrain(cloud)
 
 
 def _ridged_slope() -> np.ndarray:
