@@ -13,15 +13,16 @@ so the protocol measures the fit, not the sensor.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from .errors import InputError
+from .errors import ConfigError, InputError, Problem
 from .grid import MEASURED, HeightGrid
-from .terrain import fit_grid
+from .terrain import METHODS, fit_grid
 
 __all__ = ["DeviationRow", "DeviationResult", "run_deviation_protocol",
            "write_deviation_outputs", "PAPER_WIDTHS", "PAPER_HEIGHTS"]
@@ -85,12 +86,15 @@ def run_deviation_protocol(*, widths: Sequence[float] = PAPER_WIDTHS,
                            methods: Sequence[str] = ("robust", "paper"),
                            cell_size: float = 0.5, area: float = 22.0,
                            border: float = 2.0) -> DeviationResult:
-    """Run the Sec. VI protocol; one row per (method, control points, width, height)."""
-    for name, values in (("widths", widths), ("heights", heights)):
-        if not values or not all(np.isfinite(v) and v > 0 for v in values):
-            raise InputError(f"{name} must be a non-empty list of positive metres, got {values!r}")
-    if not (0 <= border < area / 2):
-        raise InputError(f"border must be in [0, area / 2) = [0, {area / 2}), got {border}")
+    """Run the Sec. VI protocol; one row per (method, control points, width, height).
+
+    Raises :class:`~o3d_terrain.errors.ConfigError` (every problem at once, each naming the
+    argument and the ``o3d-terrain eval deviation`` flag) before any fit when a setting is
+    out of range."""
+    problems = _check_settings(widths, heights, control_points, degree, methods, cell_size,
+                               area, border)
+    if problems:
+        raise ConfigError(problems)
     step = 0.25
     xs = np.arange(border, area - border + 1e-9, step)
     ys = np.arange(-area / 2 + border, area / 2 - border + 1e-9, step)
@@ -109,6 +113,60 @@ def run_deviation_protocol(*, widths: Sequence[float] = PAPER_WIDTHS,
     settings = dict(area_m=area, cell_size_m=cell_size, degree=degree, border_m=border,
                     obstacle_center=(area / 2, 0.0), raster_step_m=step)
     return DeviationResult(rows, settings)
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) \
+        and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_settings(widths, heights, control_points, degree, methods, cell_size, area,
+                    border) -> list[Problem]:
+    """The problems of :func:`run_deviation_protocol`'s settings (none: they can run)."""
+    problems = []
+
+    def bad(name: str, flag: str | None, message: str, fix: str) -> None:
+        what = f"{flag} ({name})" if flag else name
+        problems.append(Problem("eval deviation", f"{what} {message}", fix))
+
+    if not (_number(area) and area > 0):
+        bad("area", None, f"must be a positive number of metres, got {area!r}", "e.g. 22.0")
+        return problems
+    for name, values, paper in (("widths", widths, PAPER_WIDTHS),
+                                ("heights", heights, PAPER_HEIGHTS)):
+        if isinstance(values, (str, bytes)) or not values \
+                or not all(_number(v) and v > 0 for v in values):
+            bad(name, f"--{name}", f"must be a non-empty list of positive metres, got "
+                f"{values!r}", f"give e.g. --{name} {' '.join(f'{v:g}' for v in paper)}, the "
+                "paper's and the default")
+    if isinstance(methods, (str, bytes)) or not methods \
+            or not all(m in METHODS for m in methods):
+        bad("methods", "--methods", f"must name one or more of {', '.join(METHODS)}, got "
+            f"{methods!r}", "give e.g. --methods robust paper, the default")
+    cells = None
+    if not (_number(cell_size) and 0 < cell_size <= area / 2):
+        bad("cell_size", "--cell-size", f"must be a number of metres in (0, {area / 2:g}] "
+            f"(at least 2 x 2 cells over the {area:g} m area), got {cell_size!r}",
+            "give e.g. --cell-size 0.5, the default")
+    else:
+        cells = round(area / cell_size)
+    if not (isinstance(degree, (int, np.integer)) and not isinstance(degree, bool)
+            and 1 <= degree <= 5):
+        bad("degree", None, f"must be an integer in [1, 5], got {degree!r}", "e.g. 3")
+    else:
+        low, high = degree + 1, None if cells is None else cells + degree
+        span = f"[{low}, {high}]" if high is not None else f">= {low}"
+        if isinstance(control_points, (str, bytes)) or not control_points or not all(
+                isinstance(c, (int, np.integer)) and not isinstance(c, bool)
+                and c >= low and (high is None or c <= high) for c in control_points):
+            bad("control_points", "--control-points",
+                f"must be one or more integers in {span} (at degree {degree}"
+                + (f", on {cells} x {cells} cells of {cell_size:g} m" if cells else "")
+                + f"), got {control_points!r}", "give e.g. --control-points 5 25, the default")
+    if not (_number(border) and 0 <= border < area / 2):
+        bad("border", None, f"must be in [0, area / 2) = [0, {area / 2:g}), got {border!r}",
+            "e.g. 2.0")
+    return problems
 
 
 _COLORS = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148),

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from o3d_terrain.cli import main
 from o3d_terrain.deviation import run_deviation_protocol, write_deviation_outputs
-from o3d_terrain.errors import InputError
+from o3d_terrain.errors import ConfigError
 
 
 def test_thin_obstacles_are_cut_off_at_25_control_points():
@@ -28,5 +29,41 @@ def test_outputs_are_written(tmp_path):
 
 
 def test_bad_protocol_settings_are_rejected():
-    with pytest.raises(InputError, match="heights"):
+    with pytest.raises(ConfigError, match="heights"):
         run_deviation_protocol(heights=(-1.0,))
+
+
+@pytest.mark.parametrize("settings, named", [
+    ({"cell_size": 0.0}, "--cell-size"),
+    ({"cell_size": -1.0}, "--cell-size"),
+    ({"cell_size": float("nan")}, "--cell-size"),
+    ({"cell_size": 30.0}, "--cell-size"),
+    ({"widths": [0.0]}, "--widths"),
+    ({"control_points": [0]}, "--control-points"),
+    ({"control_points": [200]}, "--control-points"),
+    ({"control_points": [5.5]}, "--control-points"),
+    ({"methods": ["fast"]}, "--methods"),
+    ({"methods": []}, "--methods"),
+])
+def test_out_of_range_settings_name_the_flag_before_any_fit(settings, named, monkeypatch):
+    from o3d_terrain import deviation
+
+    monkeypatch.setattr(deviation, "fit_grid", lambda *a, **k: pytest.fail("fitted"))
+    with pytest.raises(ConfigError, match=named) as raised:
+        run_deviation_protocol(**settings)
+    assert "eval deviation" in str(raised.value) and "give e.g." in str(raised.value)
+
+
+def test_every_bad_setting_is_reported_at_once():
+    with pytest.raises(ConfigError) as raised:
+        run_deviation_protocol(heights=(-1.0,), cell_size=0.0)
+    assert len(raised.value.problems) == 2
+
+
+@pytest.mark.parametrize("flags", [["--cell-size", "0"], ["--cell-size", "-1"],
+                                   ["--control-points", "2"], ["--methods", "fast"]])
+def test_the_command_exits_2_on_a_bad_flag(flags, capsys):
+    assert main(["eval", "deviation", *flags]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: eval deviation: " + flags[0])
+    assert "Traceback" not in err and "ZeroDivisionError" not in err
