@@ -35,6 +35,7 @@ import contextlib
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,8 +46,15 @@ import numpy as np
 import open3d as o3d
 
 from ._files import output_path
-from .errors import InputError
-from .frame import NUMBER_OF_RETURNS, RETURN_NUMBERS, Frame, as_frame, cloud_from_numpy
+from .errors import InputError, TerrainWarning, warn
+from .frame import (
+    NUMBER_OF_RETURNS,
+    RETURN_NUMBERS,
+    Frame,
+    as_frame,
+    cloud_from_numpy,
+    warn_coarse_float32,
+)
 
 #: the ``units`` choices of :func:`read_cloud`
 UNITS = ("metres", "file")
@@ -77,6 +85,10 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
     declares (:func:`las_units`; feet tiles are scaled by 0.3048) so that metric options mean
     metres; "file" keeps the file's coordinates. Formats without unit information are read as
     they are either way.
+
+    Coordinates stored as float32 (a KITTI ``.bin``, a float32 ``.npy``) that reach magnitudes
+    where float32 values lie more than a centimetre apart (projected coordinates) give the
+    :class:`~o3d_terrain.errors.TerrainWarning` that ``segment_terrain`` gives such an array.
     """
     if units not in UNITS:
         raise InputError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
@@ -100,7 +112,7 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
         if suffix == ".bin":
             return _read_kitti_bin(path)
         return _read_las(path, to_metres=units == "metres")
-    except InputError:
+    except (InputError, Warning):  # a warning made an error by the caller's filter stays one
         raise
     except Exception as exc:  # a reader library failed on a corrupt file
         raise InputError(f"{path}: could not be read as {suffix} ({exc})") from exc
@@ -133,7 +145,19 @@ def _from_array(array: np.ndarray, path: Path) -> o3d.t.geometry.PointCloud:
         raise InputError(f"{path}: expected an (N, 3) or (N, 4) array, got shape {array.shape}")
     if len(array) == 0:
         raise InputError(f"{path}: contains no points")
+    _warn_coarse_float32(array, path)
     return as_frame(np.asarray(array, dtype=np.float64)).cloud
+
+
+def _warn_coarse_float32(positions: np.ndarray, path: Path) -> None:
+    """:func:`~o3d_terrain.frame.warn_coarse_float32` of the coordinates as the file stores
+    them (float32 in a KITTI ``.bin``, any dtype in a ``.npy``), before they become float64:
+    the same warning as for the array itself, naming the file."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TerrainWarning)
+        warn_coarse_float32(positions)
+    for found in caught:
+        warn(f"{path}: {found.message}")
 
 
 def _read_kitti_bin(path: Path) -> o3d.t.geometry.PointCloud:
@@ -144,6 +168,7 @@ def _read_kitti_bin(path: Path) -> o3d.t.geometry.PointCloud:
             "remission as float32)"
         )
     data = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
+    _warn_coarse_float32(data, path)
     return cloud_from_numpy(data[:, :3].astype(np.float64), intensities=data[:, 3])
 
 

@@ -1,3 +1,5 @@
+import warnings
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -141,3 +143,46 @@ def test_products_save_into_folders_not_made_yet(tmp_path):
         surface.slope_grid(1.0).slope_deg.shape
     assert (folder / "grid.npz").exists() and (folder / "deep" / "obstacles.json").exists()
     assert (folder / "cost.npz").exists()
+
+
+@pytest.mark.parametrize("suffix", [".bin", ".npy"])
+def test_float32_files_far_from_the_origin_warn_as_the_array_does(tmp_path, rng, suffix):
+    """A KITTI frame moved into projected coordinates and stored as float32: its points were
+    rounded by 0.25-0.5 m before the library read them, and reading the file says so, as
+    ``segment_terrain`` of the float32 array itself does."""
+    from o3d_terrain.errors import TerrainWarning
+
+    frame = np.column_stack([rng.uniform(-40, 40, (500, 2)), rng.normal(-1.7, 0.1, 500),
+                             rng.uniform(0, 1, 500)])
+    far = (frame + [5.0e5, 5.0e6, 0.0, 0.0]).astype(np.float32)
+    near = frame.astype(np.float32)
+    for name, data in (("far", far), ("near", near)):
+        path = tmp_path / f"{name}{suffix}"
+        if suffix == ".bin":
+            data.tofile(path)
+        else:
+            np.save(path, data)
+    with pytest.warns(TerrainWarning, match=r"far\.(bin|npy): .*float32.* m apart"):
+        cloud = read_cloud(tmp_path / f"far{suffix}")
+    assert cloud.point.positions.dtype == o3d.core.float64
+    with pytest.warns(TerrainWarning, match="float32.* m apart"):
+        as_frame(far)  # the array itself: the same warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TerrainWarning)
+        read_cloud(tmp_path / f"near{suffix}")  # a sensor-frame scan: float32 is fine
+        np.save(tmp_path / "far64.npy", far.astype(np.float64) + 0.001)
+        read_cloud(tmp_path / "far64.npy")  # float64 coordinates keep their precision
+
+
+def test_run_input_shows_the_float32_warning(tmp_path, rng, capsys):
+    from o3d_terrain.cli import main
+
+    pts = np.column_stack([rng.uniform(-20, 20, (3000, 2)), rng.normal(-1.7, 0.05, 3000),
+                           rng.uniform(0, 1, 3000)]) + [5.0e5, 5.0e6, 0.0, 0.0]
+    pts.astype(np.float32).tofile(tmp_path / "frame.bin")
+    pipeline = tmp_path / "p.yaml"
+    pipeline.write_text("stages:\n  - type: GridQuantize\n")
+    assert main(["run", str(pipeline), "--input", str(tmp_path / "frame.bin"),
+                 "-o", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: " in err and "frame.bin: " in err and "m apart" in err
