@@ -9,6 +9,7 @@ import argparse
 import sys
 import traceback
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -139,20 +140,52 @@ def _show_warnings_plainly() -> None:
     warnings.showwarning = plain
 
 
-def _expand_inputs(inputs: Sequence[str]) -> list[Path]:
+#: the sub-folder of a KITTI sequence folder (``sequences/00``) that holds its scans
+KITTI_SCANS = "velodyne"
+
+
+@dataclass(frozen=True)
+class _Input:
+    """One input of ``run``: its path, and the folder given with ``--input`` it was found in
+    (None for a file named on the command line)."""
+
+    path: Path
+    folder: Path | None = None
+
+    def skipped(self, exc: BaseException) -> str | None:
+        """The message for a file of a folder that could not be read as a point cloud (a
+        KITTI sequence's ``calib.txt`` or ``times.txt``), with the ``velodyne/`` folder to
+        give instead when the folder has one; None for any other failure."""
+        if self.folder is None or not str(exc).startswith("source ReadCloud:"):
+            return None
+        reason = str(exc).removeprefix("source ReadCloud: ").removeprefix(f"{self.path}: ")
+        text = f"{self.path}: skipped, not a point cloud ({reason})"
+        if (self.folder / KITTI_SCANS).is_dir():
+            text += (f"; {self.folder} looks like a KITTI sequence folder: pass its scans with "
+                     f"--input {self.folder / KITTI_SCANS}")
+        return text
+
+
+def _expand_inputs(inputs: Sequence[str]) -> list[_Input]:
     from .io import CLOUD_EXTENSIONS
 
-    paths: list[Path] = []
+    found: list[_Input] = []
     for item in inputs:
         path = Path(item)
         if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.suffix.lower() in CLOUD_EXTENSIONS)
-            if not found:
-                raise ConfigError(Problem("--input", f"folder '{item}' has no point cloud files"))
-            paths += found
+            files = sorted(p for p in path.iterdir()
+                           if p.is_file() and p.suffix.lower() in CLOUD_EXTENSIONS)
+            if not files:
+                scans = path / KITTI_SCANS
+                raise ConfigError(Problem(
+                    "--input", f"folder '{item}' has no point cloud files",
+                    f"a KITTI sequence folder keeps its scans in {KITTI_SCANS}/: pass "
+                    f"--input {scans}" if scans.is_dir() else
+                    f"give a folder holding {', '.join(CLOUD_EXTENSIONS)} files"))
+            found += [_Input(p, path) for p in files]
         else:
-            paths.append(path)
-    return paths
+            found.append(_Input(path))
+    return found
 
 
 def _output_folders(inputs: Sequence[Path]) -> list[str]:
@@ -186,20 +219,25 @@ def _pipeline_argument(args: argparse.Namespace) -> None:
 def _run(args: argparse.Namespace, verbose: bool) -> int:
     _pipeline_argument(args)
     inputs = _expand_inputs(args.input)
-    if len(inputs) <= 1:
+    if len(inputs) <= 1 and not any(item.folder for item in inputs):
+        # no input, or one file named on the command line: its outputs in OUTPUT itself
         pipeline = load_pipeline(args.pipeline, overrides=args.overrides,
-                                 input_path=inputs[0] if inputs else None)
+                                 input_path=inputs[0].path if inputs else None)
         output = args.output or pipeline.output_dir or "out"
         result = pipeline.run(output_dir=output)
         _report(result, verbose)
         return EXIT_OK
-    # a batch: check the configuration once, then keep going past a bad input
-    existing = [p for p in inputs if p.is_file()]
-    load_pipeline(args.pipeline, overrides=args.overrides,
-                  input_path=existing[0] if existing else inputs[0])
+    # a batch (several inputs, or a folder's): each in OUTPUT/<its name>/; check the
+    # configuration once, then keep going past a bad input
+    paths = [item.path for item in inputs]
+    existing = [p for p in paths if p.is_file()]
+    checked = load_pipeline(args.pipeline, overrides=args.overrides,
+                            input_path=existing[0] if existing else paths[0])
+    output = Path(args.output or checked.output_dir or "out")
     failed = []
-    for path, folder in zip(inputs, _output_folders(inputs)):
-        out = Path(args.output or "out") / folder
+    for item, folder in zip(inputs, _output_folders(paths)):
+        path = item.path
+        out = output / folder
         try:
             pipeline = load_pipeline(args.pipeline, overrides=args.overrides, input_path=path)
             result = pipeline.run(output_dir=out)
@@ -208,7 +246,7 @@ def _run(args: argparse.Namespace, verbose: bool) -> int:
                 _report(result, verbose)
         except (O3DTerrainError, OSError, ValueError) as exc:
             failed.append(path)
-            print(f"{path}: FAILED: {exc}", file=sys.stderr)
+            print(item.skipped(exc) or f"{path}: FAILED: {exc}", file=sys.stderr)
         except Exception as exc:  # noqa: BLE001 - the batch goes on; -v shows the traceback
             failed.append(path)
             print(f"{path}: FAILED ({type(exc).__name__}, an internal error; please report it "

@@ -4,7 +4,8 @@ A pipeline file::
 
     source:                      # where the first frame comes from
       type: ReadCloud
-      path: scan.laz             # relative paths resolve against this file's folder
+      path: scan.laz             # relative paths resolve against this file's folder (those
+                                 # given with --set or --input: the current folder)
     stages:
       - type: GridQuantize
         cell_size: 0.5
@@ -123,9 +124,12 @@ def _located(call, location: str):
 
 
 def check_chain(
-    source: SourceStage | None, stages: Sequence[Stage], outputs: Sequence[Writer]
+    source: SourceStage | None, stages: Sequence[Stage], outputs: Sequence[Writer], *,
+    replaced_source: str | None = None,
 ) -> list[Problem]:
-    """Problems in the order of stages: a product read before any stage makes it."""
+    """Problems in the order of stages: a product read before any stage makes it.
+    ``replaced_source``: the type of the source the file names, when ``--input`` replaced it
+    with ``source`` (the hint for a product only that source makes says so)."""
     problems = []
     available = set(source.writes) if source is not None else set()
     for index, stage in enumerate(stages):
@@ -135,21 +139,45 @@ def check_chain(
                                     "move it to 'source:'"))
         for product in stage.reads:
             if product not in available:
+                message, fix = _missing_product(product, source, replaced_source, "stage")
                 problems.append(Problem(
                     f"stages[{index}] {stage.type_name}",
-                    f"needs the product '{product}', which no earlier stage makes",
-                    f"add {producers_text(product)} before it"))
+                    f"needs the product '{product}', which no earlier stage makes{message}",
+                    fix or f"add {producers_text(product)} before it"))
         available |= set(stage.writes)
     for index, writer in enumerate(outputs):
         for product in writer.required_products():
             if product not in available:
                 made = ", ".join(sorted(available)) or "none"
                 hint = did_you_mean(product, sorted(available))
+                message, fix = _missing_product(product, source, replaced_source, "output")
                 problems.append(Problem(
                     f"outputs[{index}] {writer.type_name}",
-                    f"writes the product '{product}', which no stage makes (products: {made})",
-                    hint or f"add {producers_text(product)} to the stages"))
+                    f"writes the product '{product}', which no stage makes{message} "
+                    f"(products: {made})",
+                    hint or fix or f"add {producers_text(product)} to the stages"))
     return problems
+
+
+def _missing_product(product: str, source: SourceStage | None, replaced: str | None,
+                     what: str) -> tuple[str, str]:
+    """(more message, fix) for a ``product`` that only source stages make (a stereo pair's
+    ``disparity``), which cannot be added to the stages: keep or make such a source, or drop
+    the ``what`` ("stage" or "output") that reads it; ("", "") when a stage makes it."""
+    makers = [name for name, cls in STAGES.items() if product in cls.writes]
+    if not makers or any(not STAGES[name].is_source for name in makers):
+        return "", ""
+    names = " or ".join(makers)
+    if replaced in makers and source is not None:
+        message = (f": it comes from the source {replaced}, which --input replaced with "
+                   f"{source.type_name}")
+        fix = (f"to run on a cloud file, drop this {what}; to keep the {replaced} source, "
+               "run without --input")
+        return message, fix
+    current = f", and the source is {source.type_name}" if source is not None else \
+        " and there is no source"
+    return f": only the source {names} makes it{current}", \
+        f"use {names} as 'source:', or drop this {what}"
 
 
 def _build(
@@ -210,8 +238,11 @@ def _build_list(items: Any, key: str, registry, base_dir: Path | None, kind: str
     return built, problems
 
 
-def parse_pipeline(config: Any, *, base_dir: str | Path | None = None) -> Pipeline:
-    """Build a pipeline from a mapping (the parsed YAML). Raises ConfigError with every problem."""
+def parse_pipeline(config: Any, *, base_dir: str | Path | None = None,
+                   replaced_source: str | None = None) -> Pipeline:
+    """Build a pipeline from a mapping (the parsed YAML). Raises ConfigError with every problem.
+    ``replaced_source``: the type of the source the file names, when ``--input`` replaced it
+    (for the hints)."""
     base = Path(base_dir) if base_dir is not None else None
     problems: list[Problem] = []
     if not isinstance(config, Mapping):
@@ -229,12 +260,16 @@ def parse_pipeline(config: Any, *, base_dir: str | Path | None = None) -> Pipeli
             problems.append(Problem(f"source {source.type_name}", "is not a source stage",
                                     "use ReadCloud, StereoToCloud or SyntheticScene"))
             source = None
+    # a source that failed to build: what it would make is unknown, so the chain is not
+    # checked against it (its own problem is the one to fix)
+    source_failed = config.get("source") is not None and source is None
     stages, found = _build_list(config.get("stages"), "stages", STAGES, base, "stage")
     problems += found
     outputs, found = _build_list(config.get("outputs"), "outputs", WRITERS, None, "writer")
     problems += found
-    if all(s is not None for s in stages) and all(w is not None for w in outputs):
-        problems += check_chain(source, stages, outputs)
+    if all(s is not None for s in stages) and all(w is not None for w in outputs) \
+            and not source_failed:
+        problems += check_chain(source, stages, outputs, replaced_source=replaced_source)
     output_dir = config.get("output_dir")
     if output_dir is not None and not isinstance(output_dir, str):
         problems.append(Problem("output_dir", f"must be a folder path, got {output_dir!r}"))
@@ -302,29 +337,74 @@ def apply_overrides(config: Any, overrides: Iterable[str]) -> Any:
     return config
 
 
+def _paths_from_here(config: dict, overrides: Iterable[str]) -> dict:
+    """``config`` with the relative paths that ``overrides`` set (an input file option of the
+    source or a stage, ``--set source.calibration=pair/calib.yaml``, or of a whole source or
+    stage given as a mapping, or ``output_dir``) made absolute against the current folder,
+    as ``--input`` is: a path typed on the command line means the same whichever folder the
+    pipeline file lies in. Paths written in the file keep resolving against its folder;
+    writers' paths stay relative to the output folder."""
+    here = Path.cwd()
+
+    def absolute(value: Any) -> Any:
+        if not isinstance(value, str) or not value:
+            return value
+        path = Path(value).expanduser()
+        return str(path if path.is_absolute() else here / path)
+
+    def resolve(item: Any, names: Iterable[str] | None) -> None:
+        if not isinstance(item, dict):
+            return
+        cls = STAGES.get(item.get("type")) if isinstance(item.get("type"), str) else None
+        if cls is None:
+            return
+        for name in cls.path_options:
+            if name in item and (names is None or name in names):
+                item[name] = absolute(item[name])
+
+    for text in overrides:
+        key = text.split("=", 1)[0].strip()
+        parts = key.split(".")
+        if parts == ["output_dir"] and "output_dir" in config:
+            config["output_dir"] = absolute(config["output_dir"])
+        elif parts[0] == "source" and len(parts) <= 2:
+            resolve(config.get("source"), parts[1:] or None)
+        elif parts[0] == "stages" and 2 <= len(parts) <= 3 and parts[1].isdigit():
+            stages = config.get("stages")
+            if isinstance(stages, list) and int(parts[1]) < len(stages):
+                resolve(stages[int(parts[1])], parts[2:] or None)
+    return config
+
+
 def load_pipeline(
     path: str | Path,
     *,
     overrides: Sequence[str] = (),
     input_path: str | Path | None = None,
 ) -> Pipeline:
-    """Read, override, resolve and check a pipeline file."""
+    """Read, override, resolve and check a pipeline file. Relative paths in the file resolve
+    against its folder; those given in ``overrides`` and ``input_path``, against the current
+    folder."""
     path = Path(path)
     config = read_yaml(path)
     if config is None:
         raise ConfigError(Problem(str(path), "the pipeline file is empty", "add 'stages:'"))
     if not isinstance(config, dict):
         raise ConfigError(Problem(str(path), "must be a mapping with 'stages:'"))
-    config = apply_overrides(config, overrides)
+    config = _paths_from_here(apply_overrides(config, overrides), overrides)
+    replaced = None  # the source --input replaces
     if input_path is not None:  # a cloud file replaces whatever source the file names
         if not Path(input_path).exists():
             raise ConfigError(Problem("--input", f"'{input_path}' not found (looked for "
                                       f"{Path(input_path).resolve()})",
                                       "check the path; relative paths resolve against the "
                                       "current folder"))
+        named = config.get("source")
+        if isinstance(named, Mapping) and isinstance(named.get("type"), str):
+            replaced = named["type"]
         config["source"] = {"type": "ReadCloud", "path": str(Path(input_path).resolve())}
     try:
-        return parse_pipeline(config, base_dir=path.parent.resolve())
+        return parse_pipeline(config, base_dir=path.parent.resolve(), replaced_source=replaced)
     except ConfigError as exc:
         raise ConfigError([Problem(f"{path.name}: {p.location}" if p.location else path.name,
                                    p.message, p.fix) for p in exc.problems]) from None

@@ -163,3 +163,47 @@ def test_console_script_and_module_entry_points():
     with pytest.raises(SystemExit) as info:
         main(["run"])
     assert info.value.code == 2
+
+
+def test_a_folder_of_one_cloud_writes_into_its_own_sub_folder(tmp_path, small_cloud, capsys):
+    # docs/pipelines.md, "Batches": a folder's inputs write to OUTPUT/<input name>/, whatever
+    # their number; one file named on its own writes into OUTPUT itself
+    (tmp_path / "scans").mkdir()
+    np.save(tmp_path / "scans" / "000007.npy", small_cloud)
+    path = _pipeline(tmp_path, tmp_path / "scans" / "000007.npy")
+    out = tmp_path / "out"
+    assert main(["run", str(path), "-o", str(out), "-i", str(tmp_path / "scans")]) == 0
+    assert (out / "000007" / "height.png").exists() and not (out / "height.png").exists()
+    assert "1 of 1 inputs done" in capsys.readouterr().out
+    single = tmp_path / "single"
+    assert main(["run", str(path), "-o", str(single), "-i",
+                 str(tmp_path / "scans" / "000007.npy")]) == 0
+    assert (single / "height.png").exists()
+
+
+def test_a_kitti_sequence_folder_points_to_its_velodyne_folder(tmp_path, small_cloud, capsys):
+    sequence = tmp_path / "00"
+    (sequence / "velodyne").mkdir(parents=True)
+    small_cloud.astype(np.float32).tofile(sequence / "velodyne" / "000000.bin")
+    (sequence / "calib.txt").write_text("P0: 7.07e+02 0.0 6.04e+02 0.0 0.0 7.07e+02 1.8e+02 "
+                                        "0.0 0.0 0.0 1.0 0.0\nP1: 1 2 3 4 5 6 7 8 9 10 11 12\n")
+    (sequence / "times.txt").write_text("0.000000e+00\n1.036742e-01\n")
+    path = _pipeline(tmp_path, sequence / "velodyne" / "000000.bin")
+    code = main(["run", str(path), "-o", str(tmp_path / "out"), "-i", str(sequence)])
+    captured = capsys.readouterr()
+    assert code == 1  # the batch went through both files, and neither is a cloud
+    assert "0 of 2 inputs done" in captured.out
+    for name in ("calib.txt", "times.txt"):
+        assert f"{sequence / name}: skipped, not a point cloud (" in captured.err
+    assert f"pass its scans with --input {sequence / 'velodyne'}" in captured.err
+    # a sequence folder without such files: no cloud in it, and where the scans are
+    for name in ("calib.txt", "times.txt"):
+        (sequence / name).unlink()
+    assert main(["run", str(path), "-o", str(tmp_path / "out"), "-i", str(sequence)]) == 2
+    err = capsys.readouterr().err
+    assert f"folder '{sequence}' has no point cloud files" in err
+    assert f"--input {sequence / 'velodyne'}" in err
+    # and the velodyne folder runs
+    assert main(["run", str(path), "-o", str(tmp_path / "out"), "-i",
+                 str(sequence / "velodyne")]) == 0
+    assert (tmp_path / "out" / "000000" / "height.png").exists()

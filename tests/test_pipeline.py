@@ -93,3 +93,76 @@ def test_python_form_equals_file_form(tmp_path, cloud_file, small_cloud):
     in_python = Pipeline((GridQuantize(cell_size=0.8),)).run(small_cloud)
     np.testing.assert_array_equal(from_file.frame.products["grid"].z,
                                   in_python.frame.products["grid"].z)
+
+
+def test_paths_given_with_set_resolve_against_the_current_folder(tmp_path, cloud_file,
+                                                                 monkeypatch):
+    # the pipeline file in one folder, the user in another: a path typed on the command line
+    # means what it means in the user's folder, as --input does
+    (tmp_path / "pipelines").mkdir()
+    pipe = _write(tmp_path / "pipelines" / "p.yaml", {
+        "source": {"type": "ReadCloud", "path": "../data/cloud.npy"},
+        "stages": [{"type": "GridQuantize", "cell_size": 1.0}],
+        "outputs": [{"type": "WriteImage", "product": "grid", "path": "h.png"}],
+    })
+    assert load_pipeline(pipe).source.path == str(tmp_path / "pipelines" / "../data/cloud.npy")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    for override in ("source.path=../data/cloud.npy",
+                     "source={type: ReadCloud, path: ../data/cloud.npy}"):
+        pipeline = load_pipeline(pipe, overrides=[override])
+        assert pipeline.source.path == str(work / "../data/cloud.npy"), override
+    # the file's own relative output_dir stays against the file's folder; --set's is the user's
+    assert load_pipeline(pipe, overrides=["output_dir=results"]).output_dir == work / "results"
+    # a path relative to the file's folder is not found from the user's folder, and the
+    # message says where it looked
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(pipe, overrides=["source.path=data/cloud.npy"])
+    assert f"(looked for {work / 'data/cloud.npy'})" in str(info.value)
+    # options that are not paths, and writers' paths (relative to the output folder), as given
+    out = load_pipeline(pipe, overrides=["stages.0.cell_size=0.5", "outputs.0.path=g/h.png"])
+    assert out.stages[0].cell_size == 0.5 and out.outputs[0].path == "g/h.png"
+
+
+def test_a_product_only_a_source_makes_gets_a_hint_that_can_be_followed(tmp_path, cloud_file):
+    stereo = {"type": "StereoToCloud", "left": "l.png", "right": "r.png",
+              "calibration": "c.yaml"}
+    for name in ("l.png", "r.png", "c.yaml"):
+        (tmp_path / name).write_text("x")
+    pipe = _write(tmp_path / "p.yaml", {
+        "source": stereo, "stages": [{"type": "GridQuantize"}],
+        "outputs": [{"type": "WriteImage", "product": "disparity", "path": "d.png"}],
+    })
+    # --input replaced the stereo source: drop the output, or keep the source
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(pipe, input_path=cloud_file)
+    text = str(info.value)
+    assert "outputs[0] WriteImage: writes the product 'disparity'" in text
+    assert "it comes from the source StereoToCloud, which --input replaced with ReadCloud" in text
+    assert "drop this output" in text and "run without --input" in text
+    assert "to the stages" not in text  # a source cannot be added to the stages
+    # a file whose own source does not make it
+    with pytest.raises(ConfigError) as info:
+        parse_pipeline({"source": {"type": "SyntheticScene"}, "stages": [],
+                        "outputs": [{"type": "WriteImage", "product": "disparity"}]})
+    text = str(info.value)
+    assert "only the source StereoToCloud makes it, and the source is SyntheticScene" in text
+    assert "use StereoToCloud as 'source:', or drop this output" in text
+    assert "to the stages" not in text
+
+
+def test_a_source_that_fails_to_build_is_the_only_problem_reported(tmp_path):
+    for name in ("r.png", "c.yaml"):
+        (tmp_path / name).write_text("x")
+    pipe = _write(tmp_path / "p.yaml", {
+        "source": {"type": "StereoToCloud", "left": "nothere.png", "right": "r.png",
+                   "calibration": "c.yaml"},
+        "stages": [{"type": "GridQuantize"}],
+        "outputs": [{"type": "WriteImage", "product": "disparity", "path": "d.png"}],
+    })
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(pipe)
+    assert len(info.value.problems) == 1
+    assert "input file 'nothere.png' not found" in str(info.value)
+    assert "no stage makes" not in str(info.value)

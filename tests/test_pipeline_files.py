@@ -8,6 +8,8 @@ the same input and must give the same per-point attributes and products.
 from __future__ import annotations
 
 import importlib.util
+import re
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -89,3 +91,40 @@ def test_yaml_and_python_forms_agree(path, tmp_path):
     yaml_files = sorted(p.name for p in (tmp_path / "yaml").iterdir())
     python_files = sorted(p.name for p in (tmp_path / "python").iterdir())
     assert set(python_files) <= set(yaml_files)
+
+
+def test_the_stereo_pipeline_on_a_cloud_file_says_how_to_run(tmp_path, capsys):
+    source_input = tmp_path / "scan.npy"
+    np.save(source_input, np.random.default_rng(0).normal(size=(100, 3)))
+    assert main(["run", str(PIPELINES / "stereo_terrain.yaml"), "-i", str(source_input),
+                 "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "the source StereoToCloud, which --input replaced with ReadCloud" in err
+    assert "add StereoToCloud to the stages" not in err
+
+
+def test_overriding_the_stereo_pair_from_the_repository_root(tmp_path, capsys, monkeypatch):
+    """docs/pipelines.md, "Overrides": the pair's paths given with --set from the repository's
+    root (relative to the current folder, not to the pipeline file's)."""
+    monkeypatch.chdir(PIPELINES.parent)
+    pair = "pipelines/data/offroad_pair/"
+    args = ["validate", "pipelines/stereo_terrain.yaml", "--set", f"source.left={pair}left.png",
+            "--set", f"source.right={pair}right.png",
+            "--set", f"source.calibration={pair}calibration.yaml"]
+    assert main(args) == 0
+    assert main(["validate", "pipelines/stereo_terrain.yaml", "--set",
+                 "source.left=nothere.png"]) == 2
+    err = capsys.readouterr().err
+    assert "nothere.png' not found" in err and "no stage makes" not in err
+
+
+def test_the_overrides_example_of_the_docs_validates(monkeypatch):
+    monkeypatch.chdir(PIPELINES.parent)
+    text = (PIPELINES.parent / "docs" / "pipelines.md").read_text()
+    section = text.split("## Overrides", 1)[1].split("\n## ", 1)[0]
+    commands = re.findall(r"```bash\n(.*?)```", section, flags=re.DOTALL)
+    assert commands
+    for command in commands:
+        args = shlex.split(command.replace("\\\n", " "))
+        assert args[:2] == ["o3d-terrain", "run"]
+        assert main(["validate", *args[2:]]) == 0, command
