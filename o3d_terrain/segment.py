@@ -479,10 +479,11 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         :func:`o3d_terrain.misfit.face_points`), and there measure the points still
         above it against the plane through the terrain around them
         (:mod:`o3d_terrain.misfit`, :func:`o3d_terrain.misfit.local_plane_terrain`); on a
-        top-down scan (no points near ``sensor_origin``, :func:`sensor_in_cloud`: an airborne
-        tile) measure every point above the threshold, up to
+        top-down scan (not a scan from ``sensor_origin``, :func:`sensor_in_cloud`: an
+        airborne tile) measure every point above the threshold, up to
         :data:`o3d_terrain.misfit.MISFIT_HIGH`, against that plane, its radius from the
-        terrain's density (:func:`o3d_terrain.misfit.plane_radius`).
+        terrain's density (:func:`o3d_terrain.misfit.plane_radius`), and keep as obstacles
+        the points so taken that stand over terrain (:func:`o3d_terrain.misfit.over_terrain`).
     along_normal: measure both thresholds along the surface normal instead of vertically
         (the vertical threshold grows by sqrt(1 + |grad S|^2), at most x2, on slopes;
         :func:`relabel_along_normal`); False = vertical thresholds.
