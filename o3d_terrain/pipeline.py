@@ -76,12 +76,23 @@ class Pipeline:
         if self.outputs or out is not None:
             out = out if out is not None else Path("out")
             out.mkdir(parents=True, exist_ok=True)
+            failed: list[O3DTerrainError] = []
             for index, writer in enumerate(self.outputs):
-                written += _located(lambda: writer.write(frame, out),
-                                    f"outputs[{index}] {writer.type_name}")
+                try:  # one output's error (a misspelt attribute) does not lose the others
+                    written += _located(lambda: writer.write(frame, out),
+                                        f"outputs[{index}] {writer.type_name}")
+                except O3DTerrainError as exc:
+                    failed.append(exc)
             resolved = out / RESOLVED_NAME
             resolved.write_text(yaml.safe_dump(self.to_config(), sort_keys=False))
             written.append(resolved)
+            if failed:
+                kept = (f" (the other outputs were written to {out}: "
+                        f"{', '.join(p.name for p in written)})")
+                if len(failed) == 1:
+                    raise type(failed[0])(f"{failed[0]}{kept}") from failed[0]
+                raise StageError(f"{len(failed)} outputs failed: "
+                                 + "; ".join(str(e) for e in failed) + kept) from failed[0]
         return RunResult(frame, written, timings, time.perf_counter() - start)
 
     def to_config(self) -> dict:

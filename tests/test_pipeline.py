@@ -166,3 +166,24 @@ def test_a_source_that_fails_to_build_is_the_only_problem_reported(tmp_path):
     assert len(info.value.problems) == 1
     assert "input file 'nothere.png' not found" in str(info.value)
     assert "no stage makes" not in str(info.value)
+
+
+def test_an_output_that_fails_loses_none_of_the_others(tmp_path, cloud_file):
+    """A misspelt attribute fails its writer after the stages ran: the other outputs and the
+    resolved pipeline are still written, and the error says so."""
+    from o3d_terrain.errors import O3DTerrainError
+
+    pipe = _write(tmp_path / "p.yaml", {
+        "source": {"type": "ReadCloud", "path": "data/cloud.npy"},
+        "stages": [{"type": "GridQuantize", "cell_size": 1.0},
+                   {"type": "RationalBSplineTerrain", "control_points": [6, 6]},
+                   {"type": "Segmenter"}],
+        "outputs": [{"type": "WriteCloud", "path": "c.ply", "color_by": "labes"},
+                    {"type": "WriteAttribute", "attribute": "labels", "path": "l.npy"},
+                    {"type": "WriteImage", "product": "grid", "path": "h.png"}],
+    })
+    with pytest.raises(O3DTerrainError, match=r"outputs\[0\] WriteCloud: .*'labes'.*the other "
+                                              r"outputs were written to .*l\.npy, h\.png"):
+        load_pipeline(pipe).run(output_dir=tmp_path / "out")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
+        sorted(["l.npy", "h.png", RESOLVED_NAME])
