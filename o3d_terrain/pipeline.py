@@ -293,8 +293,33 @@ def parse_pipeline(config: Any, *, base_dir: str | Path | None = None,
     return Pipeline(tuple(stages), source, tuple(outputs), out, str(config.get("description", "")))
 
 
+class _DuplicateKey(yaml.constructor.ConstructorError):
+    """A key given twice in one mapping of a pipeline file."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that rejects a key given twice in one mapping (plain YAML keeps the
+    last one silently: a second ``cell_size:`` would override the first unseen)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                first = seen.setdefault(key, key_node)
+            except TypeError:  # an unhashable key: the base class reports it
+                break
+            if first is not key_node:
+                raise _DuplicateKey(
+                    "while reading a mapping", node.start_mark,
+                    f"the key '{key}' is given twice (first on line "
+                    f"{first.start_mark.line + 1})", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
 def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file with ``yaml.safe_load``; problems become ConfigError with line numbers."""
+    """Parse a YAML file (safe loading; a key given twice in a mapping is an error); problems
+    become ConfigError with line numbers."""
     path = Path(path)
     if not path.exists():
         raise ConfigError(Problem(str(path), "no such pipeline file", "check the path"))
@@ -305,13 +330,14 @@ def read_yaml(path: str | Path) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(Problem(str(path), f"cannot be read ({exc})")) from exc
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         what = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError(Problem(where, f"invalid YAML: {what}",
-                                  "check indentation and that lists use '- '")) from exc
+        fix = ("keep one of them" if isinstance(exc, _DuplicateKey)
+               else "check indentation and that lists use '- '")
+        raise ConfigError(Problem(where, f"invalid YAML: {what}", fix)) from exc
 
 
 def apply_overrides(config: Any, overrides: Iterable[str]) -> Any:

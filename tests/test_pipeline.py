@@ -64,6 +64,19 @@ def test_malformed_yaml_reports_line(tmp_path):
         load_pipeline(path)
 
 
+def test_a_key_given_twice_is_an_error_not_the_last_one_silently(tmp_path):
+    path = tmp_path / "twice.yaml"
+    path.write_text("stages:\n  - type: GridQuantize\n    cell_size: 0.5\n"
+                    "    cell_size: 0.25\n")
+    with pytest.raises(ConfigError, match=r"twice.yaml:4:5: invalid YAML: the key 'cell_size' "
+                                          r"is given twice \(first on line 3\) \(keep one"):
+        load_pipeline(path)
+    # the same key in two mappings is fine
+    path.write_text("stages:\n  - type: GridQuantize\n    cell_size: 0.5\n"
+                    "  - type: GridQuantize\n    cell_size: 0.25\n")
+    assert [s.cell_size for s in load_pipeline(path).stages] == [0.5, 0.25]
+
+
 def test_stage_named_as_a_key_says_how_to_write_it():
     with pytest.raises(ConfigError) as info:
         parse_pipeline({"stages": [{"GridQuantize": {"cell_size": 0.5}}, {"Segmenter": None},
