@@ -86,8 +86,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run(args, verbose)
         if args.command == "validate":
             pipeline = load_pipeline(args.pipeline, overrides=args.overrides, input_path=args.input)
-            print(f"{args.pipeline}: valid ({len(pipeline.stages)} stages, "
-                  f"{len(pipeline.outputs)} outputs)")
+            count = len(pipeline.stages)
+            print(f"{args.pipeline}: valid ({count} stage{'s' * (count != 1)}, "
+                  f"{len(pipeline.outputs)} output{'s' * (len(pipeline.outputs) != 1)})"
+                  + ("" if pipeline.source is not None else
+                     "; it has no source: run it with --input CLOUD"))
             return EXIT_OK
         if args.command == "stages":
             print(list_text())

@@ -18,6 +18,15 @@ def _pipeline(tmp_path, source_path, **stage):
     return path
 
 
+def test_validate_says_a_pipeline_without_a_source_needs_input(tmp_path, capsys):
+    path = tmp_path / "no_source.yaml"
+    path.write_text("stages:\n  - type: GridQuantize\n")
+    assert main(["validate", str(path)]) == 0
+    assert "valid (1 stage, 0 outputs); it has no source: run it with --input CLOUD" in \
+        capsys.readouterr().out
+    assert main(["run", str(path)]) == 2  # what run says without --input
+
+
 def test_validate_reports_three_problems_and_exits_2(tmp_path, capsys):
     path = tmp_path / "bad.yaml"
     path.write_text(
