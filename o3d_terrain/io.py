@@ -6,8 +6,8 @@ Readers return an ``o3d.t.geometry.PointCloud`` with float64 positions and (N, 1
 extension                 what is read
 ========================  =====================================================================
 ``.ply``, ``.pcd``        every attribute Open3D reads (positions cast to float64)
-``.xyz``, ``.txt``,       whitespace- or comma-separated x y z [intensity]; a header line is
-``.csv``, ``.pts``        skipped
+``.xyz``, ``.txt``,       whitespace-, comma-, semicolon- or tab-separated x y z [intensity]; a
+``.csv``, ``.pts``        header line is skipped
 ``.npy``                  an (N, 3) or (N, 4) array (x, y, z[, intensity])
 ``.bin``                  KITTI Velodyne float32 x, y, z, remission (``intensities``)
 ``.las``, ``.laz``        scaled float64 x, y, z; ``classification``, ``intensities``,
@@ -119,7 +119,9 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
 
 
 def _read_open3d(path: Path) -> o3d.t.geometry.PointCloud:
-    cloud = o3d.t.io.read_point_cloud(str(path))
+    # Open3D's own "Read PLY failed" warnings: the InputError below says it, with the file
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        cloud = o3d.t.io.read_point_cloud(str(path))
     if "positions" not in cloud.point or cloud.point.positions.shape[0] == 0:
         raise InputError(f"{path}: Open3D read no points (corrupt or empty file?)")
     return as_frame(cloud).cloud
@@ -128,13 +130,17 @@ def _read_open3d(path: Path) -> o3d.t.geometry.PointCloud:
 def _read_text(path: Path) -> np.ndarray:
     with open(path, "r", errors="replace") as handle:
         first = handle.readline()
-    delimiter = "," if "," in first else None
+    delimiter = next((d for d in (",", ";", "\t") if d in first), None)
     skip = 0
     try:
-        [float(v) for v in first.replace(",", " ").split()]
+        [float(v) for v in first.replace(delimiter or " ", " ").split()]
     except ValueError:
         skip = 1  # a header line
-    data = np.loadtxt(path, delimiter=delimiter, skiprows=skip, ndmin=2, comments="#")
+    with warnings.catch_warnings():  # numpy's "input contained no data": said below
+        warnings.simplefilter("ignore", UserWarning)
+        data = np.loadtxt(path, delimiter=delimiter, skiprows=skip, ndmin=2, comments="#")
+    if data.size == 0:
+        raise InputError(f"{path}: no points (an empty text file)")
     if data.shape[1] < 3:
         raise InputError(f"{path}: expected at least 3 columns (x y z), found {data.shape[1]}")
     return data[:, :4]

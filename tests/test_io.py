@@ -186,3 +186,15 @@ def test_run_input_shows_the_float32_warning(tmp_path, rng, capsys):
                  "-o", str(tmp_path / "out")]) == 0
     err = capsys.readouterr().err
     assert "warning: " in err and "frame.bin: " in err and "m apart" in err
+
+
+def test_text_files_with_semicolons_tabs_or_only_a_header(tmp_path, recwarn):
+    (tmp_path / "semi.csv").write_text("x;y;z\n1;2;3\n4;5;6\n7;8;9.5\n")
+    (tmp_path / "tab.txt").write_text("1\t2\t3\n4\t5\t6\n")
+    (tmp_path / "header.csv").write_text("x,y,z\n")
+    np.testing.assert_array_equal(read_cloud(tmp_path / "semi.csv").point.positions.numpy()[-1],
+                                  [7.0, 8.0, 9.5])
+    assert read_cloud(tmp_path / "tab.txt").point.positions.shape[0] == 2
+    with pytest.raises(InputError, match="header.csv: no points"):
+        read_cloud(tmp_path / "header.csv")
+    assert not [w for w in recwarn if "no data" in str(w.message)]  # numpy's, said by the error
