@@ -74,6 +74,13 @@ class HeightGrid:
     min_points: int = 1
     fill_empty: bool = True
 
+    def __repr__(self) -> str:
+        r = tuple(round(float(v), 3) for v in self.region)
+        measured = int(np.count_nonzero(self.state == MEASURED))
+        filled = int(np.count_nonzero(self.state == FILLED))
+        return (f"HeightGrid(cells={self.shape}, cell_size={self.cell_size}, region={r}, "
+                f"measured={measured}, filled={filled}, points={int(self.count.sum())})")
+
     @property
     def shape(self) -> tuple[int, int]:
         return tuple(self.z.shape)  # type: ignore[return-value]

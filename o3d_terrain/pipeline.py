@@ -113,6 +113,11 @@ class RunResult:
     timings: dict[str, float] = field(default_factory=dict)
     seconds: float = 0.0
 
+    def __repr__(self) -> str:
+        return (f"RunResult({len(self.frame.positions)} points, products "
+                f"{sorted(self.frame.products)}, {len(self.written)} file(s) written, "
+                f"{self.seconds:.2f} s)")
+
 
 def _located(call, location: str):
     """Run ``call``; prefix a failure's message with where in the pipeline it happened

@@ -281,3 +281,10 @@ def test_cell_plane_level_of_cells_below_min_points(rng):
     assert sparse.state[0, 0] == INVALID
     assert sparse.level[0, 0] == tilted.level[0, 0]
     assert sparse.plane_sample[0, 0] == sparse.z[0, 0]
+
+
+def test_repr_is_a_summary_not_the_arrays(rng):
+    grid = quantize_points(rng.uniform(0, 20, (5000, 3)), cell_size=1.0)
+    text = repr(grid)
+    assert text.startswith("HeightGrid(cells=(20, 20), cell_size=1.0, region=(")
+    assert "points=5000" in text and "array" not in text and len(text) < 200
