@@ -274,12 +274,14 @@ def _report(result, verbose: bool) -> None:
 
 def _describe(args: argparse.Namespace) -> int:
     registry = {**STAGES, **WRITERS}
-    if args.name not in registry:
+    # the name as any case writes it (gridquantize, GRIDQUANTIZE)
+    name = {k.lower(): k for k in registry}.get(args.name.lower(), args.name)
+    if name not in registry:
         hint = did_you_mean(args.name, list(registry))
         raise ConfigError(Problem("describe", f"unknown stage or writer '{args.name}'"
                                   + (f" ({hint})" if hint else ""),
                                   "run 'o3d-terrain stages' for the list"))
-    print(describe_text(registry[args.name], markdown=args.markdown))
+    print(describe_text(registry[name], markdown=args.markdown))
     return EXIT_OK
 
 

@@ -372,7 +372,12 @@ def apply_overrides(config: Any, overrides: Iterable[str]) -> Any:
             else:
                 raise TypeError
         except (IndexError, ValueError, TypeError, KeyError, AttributeError):
-            problems.append(Problem(f"--set {text}", f"'{key}' does not name an option in this file",
+            lists = {name: len(config[name]) for name in ("stages", "outputs")
+                     if isinstance(config, dict) and isinstance(config.get(name), list)}
+            counts = "; this file has " + ", ".join(
+                f"{n} {name} (0 to {n - 1})" for name, n in lists.items()) if lists else ""
+            problems.append(Problem(f"--set {text}",
+                                    f"'{key}' does not name an option in this file{counts}",
                                     "use stages.<index>.<option>, e.g. stages.0.cell_size=0.25"))
     if problems:
         raise ConfigError(problems)

@@ -1,5 +1,6 @@
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -216,3 +217,11 @@ def test_a_kitti_sequence_folder_points_to_its_velodyne_folder(tmp_path, small_c
     assert main(["run", str(path), "-o", str(tmp_path / "out"), "-i",
                  str(sequence / "velodyne")]) == 0
     assert (tmp_path / "out" / "000000" / "height.png").exists()
+
+
+def test_describe_takes_any_case_and_set_says_how_many_stages(capsys):
+    assert main(["describe", "gridquantize"]) == 0
+    assert capsys.readouterr().out.startswith("GridQuantize:")
+    pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "lidar_terrain.yaml"
+    assert main(["validate", str(pipeline), "--set", "stages.7.x=1"]) == 2
+    assert "this file has 4 stages (0 to 3), 5 outputs (0 to 4)" in capsys.readouterr().err
