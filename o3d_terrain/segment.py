@@ -482,8 +482,9 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         top-down scan (not a scan from ``sensor_origin``, :func:`sensor_in_cloud`: an
         airborne tile) measure every point above the threshold, up to
         :data:`o3d_terrain.misfit.MISFIT_HIGH`, against that plane, its radius from the
-        terrain's density (:func:`o3d_terrain.misfit.plane_radius`), and keep as obstacles
-        the points so taken that stand over terrain (:func:`o3d_terrain.misfit.over_terrain`).
+        terrain's density (:func:`o3d_terrain.misfit.plane_radius`); on either, keep as
+        obstacles the points so taken above the threshold that stand over terrain
+        (:func:`o3d_terrain.misfit.over_terrain`).
     along_normal: measure both thresholds along the surface normal instead of vertically
         (the vertical threshold grows by sqrt(1 + |grad S|^2), at most x2, on slopes;
         :func:`relabel_along_normal`); False = vertical thresholds.
@@ -598,6 +599,13 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         terrain = labels == TerrainLabel.TERRAIN
         over = over_terrain(p, np.flatnonzero(terrain & (h > threshold)), terrain,
                             surface.gradient)
+        labels[over] = TerrainLabel.OBSTACLE
+    elif widened:
+        # the same in a vehicle scan's widened blocks (docs/algorithm.md, "Points over the
+        # terrain on a top-down scan", its last paragraph)
+        terrain = labels == TerrainLabel.TERRAIN
+        over = over_terrain(p, np.flatnonzero(terrain & (h > threshold) & (local > threshold)),
+                            terrain, surface.gradient)
         labels[over] = TerrainLabel.OBSTACLE
     if foot_height > 0:
         spacing = line_spacing() if lines_rules and in_cloud else 0.0
