@@ -384,7 +384,7 @@ def sensor_in_cloud(positions, sensor_origin=(0.0, 0.0, 0.0), *,
     if _lp.count_within(p, x, y, float(radius), int(min_points)) < min_points:
         return False
     step = max(1, len(p) // SCAN_SAMPLE)
-    bins = int(round(2.0 * (radius + SCAN_FAR[1]) / _SCAN_BIN))  # the rings' reach at most
+    bins = round(2.0 * (radius + SCAN_FAR[1]) / _SCAN_BIN)  # the rings' reach at most
     counts = _lp.range_histogram(p, x, y, step, _SCAN_BIN, bins)
     total = np.cumsum(counts)
     first = int(np.searchsorted(total, SCAN_FIRST * total[-1]))  # where the points start
@@ -392,8 +392,7 @@ def sensor_in_cloud(positions, sensor_origin=(0.0, 0.0, 0.0), *,
     start = first * _SCAN_BIN
 
     def ring(lo, hi):  # points in [start + lo, start + hi), whole bins
-        return int(counts[first + int(round(lo / _SCAN_BIN)):
-                          first + int(round(hi / _SCAN_BIN))].sum())
+        return int(counts[first + round(lo / _SCAN_BIN):first + round(hi / _SCAN_BIN)].sum())
 
     near, far = ring(a, b), ring(c, d)
     if step * min(near, far) < SCAN_RING_MIN_POINTS:
@@ -593,20 +592,17 @@ def segment_points(surface: TerrainSurface, positions, *, threshold: float | Non
         # radius that holds PLANE_POINTS terrain points (docs/algorithm.md, "Local planes and
         # a finer layout on a top-down scan")
         _top_down_planes(labels, h, p, threshold, block)
-        # ... but not the points above the global threshold that stand over terrain: the
-        # widened threshold and the local planes took them where the surface rides over
-        # vegetation (docs/algorithm.md, "Points over the terrain on a top-down scan")
+    if use_misfit and (widened or not in_cloud):
+        # ... but not the points above the global threshold that the widened threshold or
+        # the local planes took (anywhere on a top-down scan, in the widened blocks of a
+        # vehicle's) and that stand over terrain: the surface rides over vegetation there
+        # (docs/algorithm.md, "Points over the terrain on a top-down scan")
         terrain = labels == TerrainLabel.TERRAIN
-        over = over_terrain(p, np.flatnonzero(terrain & (h > threshold)), terrain,
-                            surface.gradient)
-        labels[over] = TerrainLabel.OBSTACLE
-    elif widened:
-        # the same in a vehicle scan's widened blocks (docs/algorithm.md, "Points over the
-        # terrain on a top-down scan", its last paragraph)
-        terrain = labels == TerrainLabel.TERRAIN
-        over = over_terrain(p, np.flatnonzero(terrain & (h > threshold) & (local > threshold)),
-                            terrain, surface.gradient)
-        labels[over] = TerrainLabel.OBSTACLE
+        taken = terrain & (h > threshold)
+        if in_cloud:
+            taken &= local > threshold
+        labels[over_terrain(p, np.flatnonzero(taken), terrain, surface.gradient)] = \
+            TerrainLabel.OBSTACLE
     if foot_height > 0:
         spacing = line_spacing() if lines_rules and in_cloud else 0.0
         # behind the marks: on a lidar's scan (lines, and noise that does not grow with range:

@@ -80,6 +80,21 @@ def _candidate_grid(positions, candidates, margin, cell):
     return x0, x1, y0, y1, side, int((x1 - x0) / side) + 1, int((y1 - y0) / side) + 1
 
 
+@numba.njit(cache=True, inline="always")
+def _wanted_cells(positions, candidates, x0, y0, cell, nx, ny):
+    """(nx * ny,) bool: the cells of the grid (:func:`_candidate_grid`) in the 3 x 3 block
+    around each candidate's cell, whose points a candidate may read."""
+    wanted = np.zeros(nx * ny, np.bool_)
+    for k in range(candidates.size):
+        i = candidates[k]
+        gx = min(int((positions[i, 0] - x0) / cell), nx - 1)
+        gy = min(int((positions[i, 1] - y0) / cell), ny - 1)
+        for jx in range(max(gx - 1, 0), min(gx + 2, nx)):
+            for jy in range(max(gy - 1, 0), min(gy + 2, ny)):
+                wanted[jx * ny + jy] = True
+    return wanted
+
+
 @numba.njit(cache=True)
 def _split(points_per_cell):
     """Sub-cells per side of a neighbour cell for a mean of ``points_per_cell`` points in the
@@ -290,14 +305,7 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
     x0, x1, y0, y1, cell, nx, ny = _candidate_grid(positions, candidates, radius, radius)
     n = heights.size
     # the cells whose points can be read: a candidate's 3 x 3 cells
-    wanted = np.zeros(nx * ny, np.bool_)
-    for k in range(candidates.size):
-        i = candidates[k]
-        gx = min(int((positions[i, 0] - x0) / cell), nx - 1)
-        gy = min(int((positions[i, 1] - y0) / cell), ny - 1)
-        for jx in range(max(gx - 1, 0), min(gx + 2, nx)):
-            for jy in range(max(gy - 1, 0), min(gy + 2, ny)):
-                wanted[jx * ny + jy] = True
+    wanted = _wanted_cells(positions, candidates, x0, y0, cell, nx, ny)
     # the points in them (listed in index order), each with its cell and its fraction of it
     cell_of = np.full(n, -1, np.int64)
     listed = np.empty(n, np.int64)
@@ -588,16 +596,12 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
     if m == 0:
         return out
     x0, _, y0, _, side, nx, ny = _candidate_grid(positions, candidates, radius, radius)
-    wanted = np.zeros(nx * ny, np.bool_)
-    for k in range(m):
-        i = candidates[k]
-        cx = int((positions[i, 0] - x0) / side)
-        cy = int((positions[i, 1] - y0) / side)
-        for a in range(max(cx - 1, 0), min(cx + 2, nx)):
-            for b in range(max(cy - 1, 0), min(cy + 2, ny)):
-                wanted[a * ny + b] = True
-    start = np.zeros(nx * ny + 1, np.int64)
+    wanted = _wanted_cells(positions, candidates, x0, y0, side, nx, ny)
+    # the terrain points of the wanted cells, each with its cell, then sorted by cell
+    # (a counting sort): cell c holds order[start[c]:start[c + 1]]
     n = positions.shape[0]
+    cell_of = np.full(n, -1, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
     for j in range(n):
         if not terrain[j]:
             continue
@@ -606,21 +610,17 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
         if fx >= 0.0 and fx < nx and fy >= 0.0 and fy < ny:
             c = int(fx) * ny + int(fy)
             if wanted[c]:
+                cell_of[j] = c
                 start[c + 1] += 1
     for c in range(nx * ny):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
     order = np.empty(start[-1], np.int64)
     for j in range(n):
-        if not terrain[j]:
-            continue
-        fx = (positions[j, 0] - x0) / side
-        fy = (positions[j, 1] - y0) / side
-        if fx >= 0.0 and fx < nx and fy >= 0.0 and fy < ny:
-            c = int(fx) * ny + int(fy)
-            if wanted[c]:
-                order[fill[c]] = j
-                fill[c] += 1
+        c = cell_of[j]
+        if c >= 0:
+            order[fill[c]] = j
+            fill[c] += 1
     r2 = radius * radius
     cov = np.empty((3, 3))
     normal = np.empty(3)
