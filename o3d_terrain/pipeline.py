@@ -52,7 +52,8 @@ class Pipeline:
     description: str = ""
 
     def __post_init__(self) -> None:
-        problems = check_chain(self.source, self.stages, self.outputs)
+        problems = [] if self.stages else [Problem("Pipeline", "has no stages", _no_stages_fix())]
+        problems += check_chain(self.source, self.stages, self.outputs)
         if problems:
             raise ConfigError(problems)
 
@@ -117,6 +118,13 @@ class RunResult:
         return (f"RunResult({len(self.frame.positions)} points, products "
                 f"{sorted(self.frame.products)}, {len(self.written)} file(s) written, "
                 f"{self.seconds:.2f} s)")
+
+
+def _no_stages_fix() -> str:
+    """The fix for a pipeline without stages, with the stages it can list (not sources)."""
+    names = sorted(name for name, cls in STAGES.items() if not cls.is_source)
+    return ("list at least one stage under 'stages:', e.g. '- type: GridQuantize'; stages "
+            f"are: {', '.join(names)}")
 
 
 def _located(call, location: str):
@@ -281,6 +289,11 @@ def parse_pipeline(config: Any, *, base_dir: str | Path | None = None,
     source_failed = config.get("source") is not None and source is None
     stages, found = _build_list(config.get("stages"), "stages", STAGES, base, "stage")
     problems += found
+    if "stages" not in config:
+        problems.append(Problem("pipeline", "has no 'stages:'", _no_stages_fix()))
+    elif config["stages"] is None or config["stages"] == []:
+        problems.append(Problem("stages", "is empty: a pipeline runs at least one stage",
+                                _no_stages_fix()))
     outputs, found = _build_list(config.get("outputs"), "outputs", WRITERS, None, "writer")
     problems += found
     if all(s is not None for s in stages) and all(w is not None for w in outputs) \

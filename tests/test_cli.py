@@ -225,3 +225,14 @@ def test_describe_takes_any_case_and_set_says_how_many_stages(capsys):
     pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "lidar_terrain.yaml"
     assert main(["validate", str(pipeline), "--set", "stages.7.x=1"]) == 2
     assert "this file has 4 stages (0 to 3), 5 outputs (0 to 4)" in capsys.readouterr().err
+
+
+def test_validate_rejects_an_empty_stage_list(tmp_path, capsys):
+    path = tmp_path / "empty_stages.yaml"
+    path.write_text("source:\n  type: SyntheticScene\nstages: []\n")
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "empty_stages.yaml: stages: is empty" in err
+    assert "list at least one stage under 'stages:'" in err
+    assert main(["run", str(path), "-o", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()

@@ -157,7 +157,7 @@ def test_a_product_only_a_source_makes_gets_a_hint_that_can_be_followed(tmp_path
     assert "to the stages" not in text  # a source cannot be added to the stages
     # a file whose own source does not make it
     with pytest.raises(ConfigError) as info:
-        parse_pipeline({"source": {"type": "SyntheticScene"}, "stages": [],
+        parse_pipeline({"source": {"type": "SyntheticScene"}, "stages": [{"type": "GridQuantize"}],
                         "outputs": [{"type": "WriteImage", "product": "disparity"}]})
     text = str(info.value)
     assert "only the source StereoToCloud makes it, and the source is SyntheticScene" in text
@@ -200,3 +200,19 @@ def test_an_output_that_fails_loses_none_of_the_others(tmp_path, cloud_file):
         load_pipeline(pipe).run(output_dir=tmp_path / "out")
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
         sorted(["l.npy", "h.png", RESOLVED_NAME])
+
+
+@pytest.mark.parametrize("text", ["stages: []\n", "stages:\n", "outputs: []\n"])
+def test_a_pipeline_without_stages_is_an_error(tmp_path, text):
+    path = tmp_path / "none.yaml"
+    path.write_text("source:\n  type: SyntheticScene\n" + text)
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(path)
+    problem, = info.value.problems
+    assert problem.location.startswith("none.yaml: ")
+    assert "stages" in problem.location + problem.message
+    assert "list at least one stage under 'stages:'" in problem.fix
+    assert "GridQuantize" in problem.fix and "SyntheticScene" not in problem.fix
+    # the same in Python
+    with pytest.raises(ConfigError, match="has no stages"):
+        Pipeline(())

@@ -131,7 +131,8 @@ def test_write_las_rejects_what_does_not_fit(tmp_path):
 
 
 def _outputs(text):
-    return parse_pipeline(yaml.safe_load("stages: []\noutputs:\n  - " + text))
+    return parse_pipeline(yaml.safe_load("stages:\n  - type: GridQuantize\noutputs:\n  - "
+                                          + text))
 
 
 def test_pipeline_files_say_which_writer_writes_las(tmp_path):
