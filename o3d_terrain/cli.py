@@ -158,10 +158,13 @@ class _Input:
     def skipped(self, exc: BaseException) -> str | None:
         """The message for a file of a folder that could not be read as a point cloud (a
         KITTI sequence's ``calib.txt`` or ``times.txt``), with the ``velodyne/`` folder to
-        give instead when the folder has one; None for any other failure."""
+        give instead when the folder has one; None for any other failure (a cloud file cut
+        short is a cloud that failed)."""
         if self.folder is None or not str(exc).startswith("source ReadCloud:"):
             return None
         reason = str(exc).removeprefix("source ReadCloud: ").removeprefix(f"{self.path}: ")
+        if reason.startswith("truncated:"):
+            return None
         text = f"{self.path}: skipped, not a point cloud ({reason})"
         if (self.folder / KITTI_SCANS).is_dir():
             text += (f"; {self.folder} looks like a KITTI sequence folder: pass its scans with "

@@ -46,7 +46,7 @@ import numpy as np
 import open3d as o3d
 
 from ._files import output_path
-from .errors import InputError, TerrainWarning, warn
+from .errors import InputError, TerrainWarning, did_you_mean, warn
 from .frame import (
     NUMBER_OF_RETURNS,
     RETURN_NUMBERS,
@@ -89,6 +89,11 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
     Coordinates stored as float32 (a KITTI ``.bin``, a float32 ``.npy``) that reach magnitudes
     where float32 values lie more than a centimetre apart (projected coordinates) give the
     :class:`~o3d_terrain.errors.TerrainWarning` that ``segment_terrain`` gives such an array.
+
+    A file that cannot be read is an :class:`InputError` naming it and what is wrong; a PLY
+    file is checked against its header first (a bad header line, a file cut short, a word
+    that is not a number), since Open3D's reader returns such a file's missing points as
+    whatever memory held.
     """
     if units not in UNITS:
         raise InputError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
@@ -119,12 +124,134 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
 
 
 def _read_open3d(path: Path) -> o3d.t.geometry.PointCloud:
-    # Open3D's own "Read PLY failed" warnings: the InputError below says it, with the file
+    if path.suffix.lower() == ".ply":
+        _check_ply(path)
+    # Open3D's own "Read PLY failed" warnings: the InputErrors here say it, with the file
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cloud = o3d.t.io.read_point_cloud(str(path))
     if "positions" not in cloud.point or cloud.point.positions.shape[0] == 0:
         raise InputError(f"{path}: Open3D read no points (corrupt or empty file?)")
     return as_frame(cloud).cloud
+
+
+#: bytes of each PLY scalar type, by the names Open3D's PLY reader (RPly) accepts
+_PLY_TYPE_BYTES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
+                   "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
+                   "float": 4, "float32": 4, "double": 8, "float64": 8}
+_PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
+#: where :func:`_ply_header` stops looking for a header's end_header line (bytes)
+_PLY_HEADER_LIMIT = 1 << 20
+
+
+@dataclass(frozen=True)
+class _PlyElement:
+    """An element of a PLY header: its name and count, its number of properties, and the
+    bytes of one row in a binary file (a list property counts its length field only, so a row
+    with lists is at least that long)."""
+
+    name: str
+    count: int
+    properties: int = 0
+    row_bytes: int = 0
+    has_lists: bool = False
+
+
+def _ply_header(path: Path) -> tuple[str, list[_PlyElement], int, int]:
+    """(format, elements, bytes, lines) of a PLY file's header, read as Open3D's reader reads
+    it; InputError naming the header line it would reject."""
+    form, elements = None, []
+    with open(path, "rb") as handle:
+        if handle.readline(16).strip() != b"ply":
+            raise InputError(f"{path}: does not start with 'ply' (not a PLY file)")
+        size, number = handle.tell(), 1
+        while size < _PLY_HEADER_LIMIT:
+            raw = handle.readline(_PLY_HEADER_LIMIT)
+            if not raw:
+                break
+            size, number = size + len(raw), number + 1
+            line = raw.decode("latin-1").strip()
+            words = line.split()
+            where = f"{path}: header line {number}"
+            keyword = words[0] if words else "comment"
+            if keyword == "end_header":
+                if form is None:
+                    raise InputError(f"{where}: no 'format' line before 'end_header'")
+                return form, elements, size, number
+            if keyword in ("comment", "obj_info"):
+                continue
+            if keyword == "format" and len(words) == 3 and words[1] in _PLY_FORMATS:
+                form = words[1]
+            elif keyword == "format":
+                raise InputError(f"{where}: unknown format '{line}' (the formats are "
+                                 f"{', '.join(_PLY_FORMATS)})")
+            elif keyword == "element" and len(words) == 3 and words[2].isdigit():
+                elements.append(_PlyElement(words[1], int(words[2])))
+            elif keyword == "property" and elements and len(words) in (3, 5):
+                types = words[2:4] if words[1] == "list" and len(words) == 5 else words[1:2]
+                for name in types:
+                    if name not in _PLY_TYPE_BYTES:
+                        hint = did_you_mean(name, list(_PLY_TYPE_BYTES))
+                        raise InputError(f"{where}: unknown property type '{name}' ("
+                                         + (hint or f"types are: {', '.join(_PLY_TYPE_BYTES)}")
+                                         + ")")
+                last = elements[-1]
+                elements[-1] = _PlyElement(last.name, last.count, last.properties + 1,
+                                           last.row_bytes + _PLY_TYPE_BYTES[types[0]],
+                                           last.has_lists or len(types) == 2)
+            else:
+                raise InputError(f"{where}: '{line}' is not a header line Open3D reads (format, "
+                                 "element <name> <count>, property <type> <name>, property "
+                                 "list <count type> <type> <name>, comment, end_header)")
+    raise InputError(f"{path}: no 'end_header' line: not a PLY file, or cut short within its "
+                     "header")
+
+
+def _check_ply(path: Path) -> None:
+    """Check a PLY file against its header before Open3D reads it: Open3D's reader prints
+    its complaint about a file cut short or a word that is not a number and returns the cloud
+    anyway, the points it could not read holding whatever memory held.
+
+    A binary file must hold the bytes its header declares (at least, with list properties);
+    an ASCII file's first element (the vertices, in every writer's files) must hold the
+    numbers its header declares, one row per line (numpy reads them once more). Garbage of
+    the declared length in a binary file cannot be told from data."""
+    form, elements, header_bytes, header_lines = _ply_header(path)
+    declared = ", ".join(f"{e.count:,} {e.name} elements" for e in elements)
+    fix = "copy or export the file again"
+    if form == "ascii":
+        first = elements[0] if elements else None
+        if first is None or first.has_lists or first.count == 0:
+            return
+        try:
+            with warnings.catch_warnings():  # numpy's "input contained no data": said below
+                warnings.simplefilter("ignore", UserWarning)
+                rows = np.loadtxt(path, skiprows=header_lines, max_rows=first.count, ndmin=2,
+                                  comments=None, encoding="latin-1")
+        except ValueError as exc:
+            raise InputError(f"{path}: the {first.name} data is not {first.properties} numbers "
+                             f"per line ({exc}; row 0 is line {header_lines + 1})") from exc
+        if len(rows) < first.count:
+            raise InputError(f"{path}: truncated: its header declares {first.count:,} "
+                             f"{first.name} elements but the file holds {len(rows):,} lines "
+                             f"of them; {fix}")
+        if rows.shape[1] != first.properties:
+            raise InputError(f"{path}: the {first.name} data is not {first.properties} numbers "
+                             f"per line (its lines hold {rows.shape[1]})")
+        return
+    have = path.stat().st_size - header_bytes
+    need = sum(e.count * e.row_bytes for e in elements)
+    if have >= need:
+        return
+    start, cut = 0, elements[-1]  # the element the data ends in
+    for cut in elements:
+        if start + cut.count * cut.row_bytes > have:
+            break
+        start += cut.count * cut.row_bytes
+    whole = (f" (whole {cut.name} elements: {(have - start) // cut.row_bytes:,})"
+             if cut.row_bytes and not cut.has_lists else "")
+    raise InputError(f"{path}: truncated: its header declares {declared} ({need:,} bytes"
+                     f"{' at least' if any(e.has_lists for e in elements) else ''}) but "
+                     f"{have:,} bytes follow the header{whole}; {fix}")
 
 
 def _read_text(path: Path) -> np.ndarray:

@@ -54,18 +54,39 @@ def test_run_writes_outputs(tmp_path, small_cloud, capsys):
     assert resolved["stages"][0]["cell_size"] == 2.0
 
 
-def test_batch_keeps_going_past_a_bad_input(tmp_path, small_cloud, capsys):
+def test_batch_keeps_going_past_a_bad_input(tmp_path, small_cloud, capfd):
+    from o3d_terrain import write_cloud
+
     np.save(tmp_path / "a.npy", small_cloud)
     (tmp_path / "b.npy").write_bytes(b"garbage")
     np.save(tmp_path / "c.npy", small_cloud)
+    # a PLY file cut short: Open3D's reader would print its complaint and return the cloud
+    # with the missing points made of whatever memory held
+    whole = write_cloud(tmp_path / "e.ply", small_cloud).read_bytes()
+    (tmp_path / "d.ply").write_bytes(whole[:len(whole) // 2])
     path = _pipeline(tmp_path, tmp_path / "a.npy")
-    code = main(["run", str(path), "-o", str(tmp_path / "out"), "-i", str(tmp_path / "a.npy"),
-                 "-i", str(tmp_path / "b.npy"), "-i", str(tmp_path / "c.npy")])
-    captured = capsys.readouterr()
+    inputs = [str(tmp_path / name) for name in ("a.npy", "b.npy", "c.npy", "d.ply", "e.ply")]
+    code = main(["run", str(path), "-o", str(tmp_path / "out"), "-i", *inputs])
+    captured = capfd.readouterr()
     assert code == 1
     assert "b.npy: FAILED" in captured.err
-    assert "2 of 3 inputs done" in captured.out
+    assert f"{inputs[3]}: FAILED: source ReadCloud: {inputs[3]}: truncated: its header " \
+           "declares" in captured.err
+    assert "RPly" not in captured.err
+    assert "3 of 5 inputs done" in captured.out
+    assert f"failed: {inputs[1]}, {inputs[3]}" in captured.out
     assert (tmp_path / "out" / "c" / "height.png").exists()
+    assert (tmp_path / "out" / "e" / "height.png").exists()
+    assert not (tmp_path / "out" / "d" / "height.png").exists()
+    # in a folder, too: a cloud cut short failed, it is not "skipped, not a point cloud"
+    (tmp_path / "scans").mkdir()
+    for name in ("c.npy", "d.ply"):
+        (tmp_path / "scans" / name).write_bytes((tmp_path / name).read_bytes())
+    assert main(["run", str(path), "-o", str(tmp_path / "out2"), "-i",
+                 str(tmp_path / "scans")]) == 1
+    captured = capfd.readouterr()
+    assert f"{tmp_path / 'scans' / 'd.ply'}: FAILED: source ReadCloud:" in captured.err
+    assert "1 of 2 inputs done" in captured.out
 
 
 def test_one_input_option_takes_several_paths_and_the_pipeline_after_them(tmp_path, small_cloud,

@@ -198,3 +198,53 @@ def test_text_files_with_semicolons_tabs_or_only_a_header(tmp_path, recwarn):
     with pytest.raises(InputError, match="header.csv: no points"):
         read_cloud(tmp_path / "header.csv")
     assert not [w for w in recwarn if "no data" in str(w.message)]  # numpy's, said by the error
+
+
+def _ply(header_lines, body=b""):
+    return ("\n".join(["ply", *header_lines, "end_header"]) + "\n").encode() + body
+
+
+def test_a_truncated_or_corrupt_ply_names_the_file_and_what_is_wrong(tmp_path, rng, capfd):
+    """Open3D's PLY reader prints its complaint and returns the cloud anyway, the points it
+    could not read holding whatever memory held: read_cloud checks the file against its header
+    first."""
+    pts = rng.normal(size=(100, 3))
+    raw = write_cloud(tmp_path / "good.ply", pts).read_bytes()
+    body = raw.index(b"end_header\n") + len(b"end_header\n")  # 100 vertices of 3 doubles
+    xyz = ["format ascii 1.0", "element vertex 100", "property float x", "property float y",
+           "property float z"]
+    rows = [b"%f %f %f\n" % tuple(p) for p in pts]
+    lines = b"".join(rows)
+    cases = {
+        "cut.ply": (raw[:body + 500], (r"truncated: its header declares 100 vertex elements "
+                                       r"\(2,400 bytes\) but 500 bytes follow the header "
+                                       r"\(whole vertex elements: 20\)")),
+        "header_only.ply": (raw[:body], r"truncated: .* but 0 bytes follow the header"),
+        "garbage.ply": (raw[:body] + bytes(range(37)), r"truncated: .* but 37 bytes follow"),
+        "ascii_cut.ply": (_ply(xyz, b"".join(rows[:10])),
+                          (r"truncated: its header declares 100 vertex elements but the file "
+                           r"holds 10 lines of them")),
+        "ascii_garbage.ply": (_ply(xyz, b"".join(rows[:30]) + b"foo bar baz\n"
+                                   + b"".join(rows[31:])),
+                              r"the vertex data is not 3 numbers per line .*foo"),
+        "bad_type.ply": (_ply(["format binary_little_endian 1.0", "element vertex 100",
+                               "property floot x"], bytes(1200)),
+                         r"header line 4: unknown property type 'floot'"),
+        "no_end.ply": (b"ply\nformat binary_little_endian 1.0\nelement vertex 100\n"
+                       + b"property float x\n", r"no 'end_header' line"),
+        "not_ply.ply": (b"solid cube\n" + bytes(100), r"does not start with 'ply'"),
+    }
+    for name, (data, expected) in cases.items():
+        path = tmp_path / name
+        path.write_bytes(data)
+        with pytest.raises(InputError, match=expected) as info:
+            read_cloud(path)
+        assert str(info.value).startswith(f"{path}: "), name
+    assert "RPly" not in capfd.readouterr().err  # nothing reached Open3D's reader
+    # a valid binary file with a face list after its vertices, and an ASCII one, still read
+    mesh = raw[:body].replace(b"end_header\n", b"element face 1\nproperty list uchar int "
+                              b"vertex_indices\nend_header\n") + raw[body:] + b"\x03" + bytes(12)
+    (tmp_path / "mesh.ply").write_bytes(mesh)
+    np.testing.assert_allclose(_positions(read_cloud(tmp_path / "mesh.ply")), pts)
+    (tmp_path / "ascii.ply").write_bytes(_ply(xyz, lines))
+    np.testing.assert_allclose(_positions(read_cloud(tmp_path / "ascii.ply")), pts, atol=1e-5)
