@@ -17,7 +17,7 @@ from . import __version__
 from .docgen import describe_text, list_text
 from ._malloc import keep_freed_memory
 from .errors import ConfigError, O3DTerrainError, Problem, TerrainWarning, did_you_mean
-from .pipeline import load_pipeline
+from .pipeline import load_pipeline, unchecked_attributes
 from .stages import STAGES
 from .writers import WRITERS
 
@@ -87,10 +87,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "validate":
             pipeline = load_pipeline(args.pipeline, overrides=args.overrides, input_path=args.input)
             count = len(pipeline.stages)
+            unchecked = unchecked_attributes(pipeline)
             print(f"{args.pipeline}: valid ({count} stage{'s' * (count != 1)}, "
                   f"{len(pipeline.outputs)} output{'s' * (len(pipeline.outputs) != 1)})"
                   + ("" if pipeline.source is not None else
-                     "; it has no source: run it with --input CLOUD"))
+                     "; it has no source: run it with --input CLOUD")
+                  + ("" if not unchecked else
+                     "; attributes the cloud itself must carry (checked when it is read): "
+                     + "; ".join(unchecked)))
             return EXIT_OK
         if args.command == "stages":
             print(list_text())
@@ -223,6 +227,8 @@ def _pipeline_argument(args: argparse.Namespace) -> None:
 
 
 def _run(args: argparse.Namespace, verbose: bool) -> int:
+    from .io import file_attributes
+
     _pipeline_argument(args)
     inputs = _expand_inputs(args.input)
     if len(inputs) <= 1 and not any(item.folder for item in inputs):
@@ -237,8 +243,10 @@ def _run(args: argparse.Namespace, verbose: bool) -> int:
     # configuration once, then keep going past a bad input
     paths = [item.path for item in inputs]
     existing = [p for p in paths if p.is_file()]
-    checked = load_pipeline(args.pipeline, overrides=args.overrides,
-                            input_path=existing[0] if existing else paths[0])
+    # checked on a PLY or PCD input when there is one: what the writers name that another
+    # format cannot carry fails that input alone (its own check below), not the batch
+    checked = load_pipeline(args.pipeline, overrides=args.overrides, input_path=next(
+        (p for p in existing if file_attributes(p) is None), (existing or paths)[0]))
     output = Path(args.output or checked.output_dir or "out")
     failed = []
     for item, folder in zip(inputs, _output_folders(paths)):

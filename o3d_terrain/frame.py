@@ -19,7 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 import open3d as o3d
 
-from .errors import InputError, warn
+from .errors import InputError, did_you_mean, warn
 
 #: per-point attribute names written by the stages (Open3D style: plural snake_case)
 LABELS = "labels"
@@ -71,8 +71,10 @@ class Frame:
     def attribute(self, name: str) -> np.ndarray:
         """A per-point attribute as a read-only array: (N,) for one column, (N, k) otherwise."""
         if name not in self.cloud.point:
-            have = ", ".join(sorted(k for k in self.cloud.point if k != "positions")) or "none"
-            raise KeyError(f"the cloud has no attribute '{name}' (attributes: {have})")
+            names = sorted(k for k in self.cloud.point if k != "positions")
+            hint = did_you_mean(name, names)
+            raise KeyError(f"the cloud has no attribute '{name}' (attributes: "
+                           f"{', '.join(names) or 'none'})" + (f" ({hint})" if hint else ""))
         values = self.cloud.point[name].numpy()
         if values.ndim == 2 and values.shape[1] == 1:
             values = values[:, 0]

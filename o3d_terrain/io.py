@@ -63,7 +63,21 @@ UNITS = ("metres", "file")
 EPSG_LINEAR_UNITS = {9001: 1.0, 9002: 0.3048, 9003: 1200.0 / 3937.0}
 
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".npy", ".bin", ".las", ".laz")
+#: the per-point attributes :func:`read_cloud` may give a file of each format besides
+#: ``positions`` (the table above); a PLY or PCD file carries whatever it was written with
+FILE_ATTRIBUTES = {
+    **dict.fromkeys((".xyz", ".txt", ".csv", ".pts", ".npy", ".bin"), ("intensities",)),
+    **dict.fromkeys((".las", ".laz"), ("classification", "intensities", RETURN_NUMBERS,
+                                       NUMBER_OF_RETURNS, "colors")),
+}
 WRITE_EXTENSIONS = (".ply", ".pcd", ".npz", ".xyz", ".txt")
+
+
+def file_attributes(path: str | os.PathLike) -> tuple[str, ...] | None:
+    """The per-point attributes :func:`read_cloud` may give the file at ``path`` besides
+    ``positions``, by its format; None for PLY and PCD files, whose attributes only the file
+    can tell."""
+    return FILE_ATTRIBUTES.get(Path(path).suffix.lower())
 
 
 def _check_readable(path: Path) -> None:

@@ -180,15 +180,70 @@ def check_chain(
                     f"writes the product '{product}', which no stage makes{message} "
                     f"(products: {made})",
                     hint or fix or f"add {producers_text(product)} to the stages"))
+    problems += _check_attributes(source, stages, outputs, replaced_source)
     return problems
 
 
+def _check_attributes(source: SourceStage | None, stages: Sequence[Stage],
+                      outputs: Sequence[Writer], replaced_source: str | None) -> list[Problem]:
+    """Problems of the per-point attributes the writers name (``color_by``, ``attribute``)
+    that neither the source nor any stage gives. Unchecked when only the data can tell what
+    the cloud carries: a PLY or PCD file, a cloud given to :meth:`Pipeline.run`."""
+    given = source.given_attributes() if source is not None else None
+    if given is None:
+        return []
+    attributes = _attributes(given, stages)
+    problems = []
+    for index, writer in enumerate(outputs):
+        for option_name, attribute in writer.required_attributes().items():
+            if attribute in attributes:
+                continue
+            hint = did_you_mean(attribute, attributes)
+            message, fix = _missing_product(attribute, source, replaced_source, "output",
+                                            declared="writes_attributes")
+            makers = [name for name, cls in STAGES.items()
+                      if attribute in cls.writes_attributes and not cls.is_source]
+            problems.append(Problem(
+                f"outputs[{index}] {writer.type_name}",
+                f"{option_name} '{attribute}' is not a per-point attribute the source "
+                f"{source.type_name} or a stage gives{message} (attributes: "
+                f"{', '.join(attributes)})",
+                hint or fix or (f"add {' or '.join(makers)} to the stages" if makers else
+                                "name one of the attributes listed")))
+    return problems
+
+
+def _attributes(given: Iterable[str], stages: Sequence[Stage]) -> list[str]:
+    """The per-point attributes of the cloud the writers get: ``positions``, those the source
+    ``given``, and those the stages write; sorted."""
+    return sorted({"positions", *given}.union(*(s.writes_attributes for s in stages)))
+
+
+def unchecked_attributes(pipeline: Pipeline) -> list[str]:
+    """The attributes the writers name that only the data can confirm, when the source's
+    cloud may carry any (a PLY or PCD file, no source): those no stage writes, each as
+    "outputs[i] Writer: option 'name'" with a did-you-mean of the stages' attributes when
+    one is close. Empty when :func:`check_chain` checked them all."""
+    if pipeline.source is not None and pipeline.source.given_attributes() is not None:
+        return []
+    written = _attributes((), pipeline.stages)
+    found = []
+    for index, writer in enumerate(pipeline.outputs):
+        for option_name, attribute in writer.required_attributes().items():
+            if attribute not in written:
+                hint = did_you_mean(attribute, written)
+                found.append(f"outputs[{index}] {writer.type_name}: {option_name} "
+                             f"'{attribute}'" + (f" ({hint})" if hint else ""))
+    return found
+
+
 def _missing_product(product: str, source: SourceStage | None, replaced: str | None,
-                     what: str) -> tuple[str, str]:
+                     what: str, *, declared: str = "writes") -> tuple[str, str]:
     """(more message, fix) for a ``product`` that only source stages make (a stereo pair's
     ``disparity``), which cannot be added to the stages: keep or make such a source, or drop
-    the ``what`` ("stage" or "output") that reads it; ("", "") when a stage makes it."""
-    makers = [name for name, cls in STAGES.items() if product in cls.writes]
+    the ``what`` ("stage" or "output") that reads it; ("", "") when a stage makes it.
+    ``declared``: "writes_attributes" for a per-point attribute."""
+    makers = [name for name, cls in STAGES.items() if product in getattr(cls, declared)]
     if not makers or any(not STAGES[name].is_source for name in makers):
         return "", ""
     names = " or ".join(makers)

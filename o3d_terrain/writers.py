@@ -37,6 +37,10 @@ class Writer(Component):
     def required_products(self) -> tuple[str, ...]:
         return ()
 
+    def required_attributes(self) -> dict[str, str]:
+        """The per-point attributes this writer reads, by the option that names each."""
+        return {}
+
     def write(self, frame: Frame, out_dir: Path) -> list[Path]:  # pragma: no cover - abstract
         raise NotImplementedError
 
@@ -98,6 +102,9 @@ class WriteCloud(Writer):
             return [f"The 'path' option of WriteCloud must end in one of "
                     f"{', '.join(io.WRITE_EXTENSIONS)}. Got {self.path!r}."]
         return []
+
+    def required_attributes(self) -> dict[str, str]:
+        return {"color_by": self.color_by} if self.color_by else {}
 
     def write(self, frame: Frame, out_dir: Path) -> list[Path]:
         if self.color_by:
@@ -299,6 +306,9 @@ class WriteAttribute(Writer):
 
     attribute: str = option("labels", kind=str, help="per-point attribute name")
     path: str = option("labels.npy", kind="path", help="file name (.npy or .txt)")
+
+    def required_attributes(self) -> dict[str, str]:
+        return {"attribute": self.attribute}
 
     def write(self, frame: Frame, out_dir: Path) -> list[Path]:
         values = np.asarray(frame.attribute(self.attribute))

@@ -257,3 +257,33 @@ def test_validate_rejects_an_empty_stage_list(tmp_path, capsys):
     assert "list at least one stage under 'stages:'" in err
     assert main(["run", str(path), "-o", str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
+
+
+def test_validate_checks_the_attributes_writers_name(tmp_path, small_cloud, capsys):
+    from o3d_terrain import write_cloud
+    from o3d_terrain.frame import as_frame
+
+    path = tmp_path / "p.yaml"
+    path.write_text("source:\n  type: SyntheticScene\nstages:\n  - type: GridQuantize\n"
+                    "  - type: RationalBSplineTerrain\n  - type: Segmenter\noutputs:\n"
+                    "  - type: WriteCloud\n    color_by: labes\n")
+    assert main(["validate", str(path)]) == 2
+    assert "outputs[0] WriteCloud: color_by 'labes' is not a per-point attribute the source " \
+           "SyntheticScene or a stage gives" in capsys.readouterr().err
+    # a PLY file may carry any attribute: validate says which names only it can give
+    np.save(tmp_path / "a.npy", small_cloud)
+    write_cloud(tmp_path / "b.ply", as_frame(small_cloud).with_attributes(
+        reflectance=small_cloud[:, 2]))
+    assert main(["validate", str(path), "-i", str(tmp_path / "b.ply")]) == 0
+    assert "valid (3 stages, 1 output); attributes the cloud itself must carry (checked when " \
+           "it is read): outputs[0] WriteCloud: color_by 'labes' (did you mean 'labels'?)" in \
+           capsys.readouterr().out
+    # in a batch, the inputs whose format cannot carry it fail alone
+    assert main(["run", str(path), "-o", str(tmp_path / "out"), "--set",
+                 "outputs.0.color_by=reflectance", "-i", str(tmp_path / "a.npy"),
+                 str(tmp_path / "b.ply")]) == 1
+    captured = capsys.readouterr()
+    assert f"{tmp_path / 'a.npy'}: FAILED: p.yaml: outputs[0] WriteCloud: color_by " \
+           "'reflectance' is not a per-point attribute" in captured.err
+    assert "1 of 2 inputs done" in captured.out
+    assert (tmp_path / "out" / "b" / "cloud.ply").exists()

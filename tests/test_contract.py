@@ -98,9 +98,13 @@ def test_rejects_unknown_options(name, tmp_path, small_cloud):
 
 @pytest.mark.parametrize("name", [n for n in STAGE_NAMES if STAGES[n].is_source])
 def test_source_writes_what_it_declares(name, tmp_path, small_cloud):
-    frame = _instance(STAGES[name], tmp_path, small_cloud)()
+    source = _instance(STAGES[name], tmp_path, small_cloud)
+    frame = source()
     assert len(frame) > 0
     assert set(frame.products) == set(STAGES[name].writes)
+    # the attributes a pipeline checks its writers' names against (None: only the data knows)
+    if source.given_attributes() is not None:
+        assert set(frame.attribute_names()) <= set(source.given_attributes())
     assert frame.cloud.point.positions.dtype == o3d.core.float64
 
 

@@ -6,6 +6,7 @@ import pytest
 
 from o3d_terrain import InputError, read_cloud, write_cloud
 from o3d_terrain.frame import as_frame
+from o3d_terrain.io import file_attributes
 
 
 def _positions(cloud):
@@ -41,6 +42,12 @@ def test_text_numpy_and_kitti(tmp_path, rng):
     kitti = read_cloud(tmp_path / "d.bin")
     assert kitti.point.positions.dtype == o3d.core.float64
     np.testing.assert_allclose(_positions(kitti), pts[:, :3].astype(np.float32))
+    # what a pipeline checks the attributes its writers name against
+    np.save(tmp_path / "e.npy", pts)
+    for name in ("a.xyz", "b.csv", "c.npy", "d.bin", "e.npy"):
+        given = set(read_cloud(tmp_path / name).point) - {"positions"}
+        assert given <= set(file_attributes(tmp_path / name)), name
+    assert file_attributes("scan.PLY") is None and file_attributes("scan.pcd") is None
 
 
 def test_unreadable_inputs(tmp_path):
@@ -67,6 +74,7 @@ def test_las_reads_classification(shared_data):
     assert cloud.point.positions.dtype == o3d.core.float64
     assert "classification" in cloud.point
     assert (cloud.point.classification.numpy() == 2).any()
+    assert set(cloud.point) - {"positions"} <= set(file_attributes("warsaw_small.las"))
 
 
 def test_as_frame_accepts_all_cloud_kinds_and_never_modifies(rng):

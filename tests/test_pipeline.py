@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 import yaml
 
-from o3d_terrain import ConfigError, GridQuantize, Pipeline, load_pipeline, parse_pipeline
+from o3d_terrain import (
+    ConfigError,
+    GridQuantize,
+    Pipeline,
+    load_pipeline,
+    parse_pipeline,
+    write_cloud,
+)
+from o3d_terrain.frame import as_frame
 from o3d_terrain.pipeline import RESOLVED_NAME, apply_overrides
 
 
@@ -181,13 +189,15 @@ def test_a_source_that_fails_to_build_is_the_only_problem_reported(tmp_path):
     assert "no stage makes" not in str(info.value)
 
 
-def test_an_output_that_fails_loses_none_of_the_others(tmp_path, cloud_file):
-    """A misspelt attribute fails its writer after the stages ran: the other outputs and the
-    resolved pipeline are still written, and the error says so."""
+def test_an_output_that_fails_loses_none_of_the_others(tmp_path, small_cloud):
+    """A misspelt attribute fails its writer after the stages ran (a PLY file's attributes
+    are known when it is read): the other outputs and the resolved pipeline are still
+    written, and the error says so."""
     from o3d_terrain.errors import O3DTerrainError
 
+    write_cloud(tmp_path / "data" / "cloud.ply", small_cloud)
     pipe = _write(tmp_path / "p.yaml", {
-        "source": {"type": "ReadCloud", "path": "data/cloud.npy"},
+        "source": {"type": "ReadCloud", "path": "data/cloud.ply"},
         "stages": [{"type": "GridQuantize", "cell_size": 1.0},
                    {"type": "RationalBSplineTerrain", "control_points": [6, 6]},
                    {"type": "Segmenter"}],
@@ -195,8 +205,9 @@ def test_an_output_that_fails_loses_none_of_the_others(tmp_path, cloud_file):
                     {"type": "WriteAttribute", "attribute": "labels", "path": "l.npy"},
                     {"type": "WriteImage", "product": "grid", "path": "h.png"}],
     })
-    with pytest.raises(O3DTerrainError, match=r"outputs\[0\] WriteCloud: .*'labes'.*the other "
-                                              r"outputs were written to .*l\.npy, h\.png"):
+    with pytest.raises(O3DTerrainError, match=r"outputs\[0\] WriteCloud: .*'labes'.*\(did you "
+                                              r"mean 'labels'\?\) \(the other outputs were "
+                                              r"written to .*l\.npy, h\.png"):
         load_pipeline(pipe).run(output_dir=tmp_path / "out")
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
         sorted(["l.npy", "h.png", RESOLVED_NAME])
@@ -216,3 +227,54 @@ def test_a_pipeline_without_stages_is_an_error(tmp_path, text):
     # the same in Python
     with pytest.raises(ConfigError, match="has no stages"):
         Pipeline(())
+
+
+def test_an_attribute_a_writer_names_is_checked_against_the_source_and_the_stages(
+        tmp_path, cloud_file, small_cloud):
+    """color_by and WriteAttribute's attribute name per-point attributes: the stages declare
+    theirs, and every source but a PLY or PCD file declares what its cloud may carry."""
+    from o3d_terrain import ReadCloud
+    from o3d_terrain.stages import RationalBSplineTerrain, Segmenter
+    from o3d_terrain.writers import WriteCloud
+
+    stages = [{"type": "GridQuantize"}, {"type": "RationalBSplineTerrain"}, {"type": "Segmenter"}]
+    pipe = _write(tmp_path / "p.yaml", {
+        "source": {"type": "ReadCloud", "path": "data/cloud.npy"}, "stages": stages,
+        "outputs": [{"type": "WriteCloud", "path": "c.ply", "color_by": "labes"},
+                    {"type": "WriteAttribute", "attribute": "slopes_deg"},
+                    {"type": "WriteAttribute", "attribute": "intensities", "path": "i.npy"},
+                    {"type": "WriteCloud", "path": "h.ply", "color_by": "heights_above_terrain"},
+                    {"type": "WriteAttribute", "attribute": "ground_truth", "path": "g.npy"}],
+    })
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(pipe)
+    problems = [str(p) for p in info.value.problems]
+    assert len(problems) == 3, problems
+    assert problems[0].startswith(
+        "p.yaml: outputs[0] WriteCloud: color_by 'labes' is not a per-point attribute the "
+        "source ReadCloud or a stage gives (attributes: heights_above_terrain, intensities, "
+        "labels, positions)")
+    assert problems[0].endswith("(did you mean 'labels'?)")
+    assert "outputs[1] WriteAttribute: attribute 'slopes_deg'" in problems[1]
+    assert problems[1].endswith("(add SlopeEstimator to the stages)")
+    assert "outputs[4] WriteAttribute: attribute 'ground_truth'" in problems[2]
+    assert "only the source SyntheticScene makes it, and the source is ReadCloud" in problems[2]
+    # the same with --input: the input file's format says what its cloud may carry
+    las = tmp_path / "tile.las"
+    las.write_bytes(b"x")  # only its name is read before the run
+    with pytest.raises(ConfigError) as info:
+        load_pipeline(pipe, input_path=las)
+    assert "attributes: classification, colors, heights_above_terrain, intensities, labels, " \
+           "number_of_returns, positions, return_numbers)" in str(info.value)
+    # and in Python
+    with pytest.raises(ConfigError, match="color_by 'labes' is not a per-point attribute"):
+        Pipeline((GridQuantize(), RationalBSplineTerrain(), Segmenter()),
+                 ReadCloud(path=str(cloud_file)), (WriteCloud(color_by="labes"),))
+    # a PLY or PCD file carries whatever it was written with: only the data can tell
+    ply = tmp_path / "data" / "cloud.ply"
+    write_cloud(ply, as_frame(small_cloud).with_attributes(reflectance=small_cloud[:, 2]))
+    pipeline = Pipeline((GridQuantize(),), ReadCloud(path=str(ply)),
+                        (WriteCloud(color_by="reflectance"),))
+    assert pipeline.run(output_dir=tmp_path / "out").written
+    # as does a cloud given to run() without a source
+    Pipeline((GridQuantize(),), None, (WriteCloud(color_by="reflectance"),))

@@ -9,7 +9,8 @@ point is read:
 
 - ``reads``: products that an earlier stage must have made (e.g. ``("grid",)``);
 - ``writes``: products it adds to the frame;
-- ``writes_attributes``: per-point attributes it adds to the cloud.
+- ``writes_attributes``: per-point attributes it adds to the cloud (a source: those its first
+  frame may carry, ``given_attributes()``, which a file reader answers per format).
 """
 
 from __future__ import annotations
@@ -72,6 +73,12 @@ class SourceStage(Stage):
     """A stage that makes the first frame (a file reader, a stereo pair, a synthetic scene)."""
 
     is_source: ClassVar[bool] = True
+
+    def given_attributes(self) -> tuple[str, ...] | None:
+        """The per-point attributes the first frame may carry besides ``positions`` (what a
+        pipeline checks the attributes its writers name against); None when only the data
+        can tell."""
+        return self.writes_attributes
 
 
 def producers_text(product: str) -> str:

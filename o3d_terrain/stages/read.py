@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..frame import Frame
-from ..io import CLOUD_EXTENSIONS, LAS_EXTENSIONS, UNITS, LasSource, read_cloud
+from ..io import CLOUD_EXTENSIONS, LAS_EXTENSIONS, UNITS, LasSource, file_attributes, read_cloud
 from ..options import option
 from .base import SourceStage, stage
 
@@ -34,6 +34,11 @@ class ReadCloud(SourceStage):
                         help="LAS/LAZ: 'metres' converts from the units the file declares "
                              "(US-feet tiles are scaled by 0.3048) so metric options mean "
                              "metres; 'file' keeps the file's coordinates")
+
+    def given_attributes(self) -> tuple[str, ...] | None:
+        """What the file's format may carry (:data:`o3d_terrain.io.FILE_ATTRIBUTES`); None
+        for a PLY or PCD file, which carries whatever it was written with."""
+        return file_attributes(self.path)
 
     def read(self) -> Frame:
         frame = Frame(read_cloud(self.path, units=self.units)).with_note(
