@@ -381,6 +381,35 @@ def test_heights_above_equal_z_minus_surface_and_are_nan_outside():
     assert np.isfinite(h[6]) and np.isnan(h[5])
 
 
+def test_heights_above_of_points_in_sequence_equal_each_point_alone():
+    """The cubic heights hold the previous point's spans while the points stay in them: points
+    in order along a line (consecutive ones sharing spans), on the knots, on a repeated knot,
+    outside the knot range (within the tolerance and beyond) and non-finite between them give
+    each point's height alone, bit for bit, serial and parallel."""
+    rng = np.random.default_rng(21)
+    kx = np.r_[[0.0] * 4, 0.6, 1.5, 4.0, 7.0, 7.0, 8.5, [10.0] * 4]
+    ky = np.r_[[-3.0] * 4, -1.0, 0.2, 0.5, 3.6, [6.0] * 4]
+    n0, n1 = kx.size - 4, ky.size - 4
+    s = TerrainSurface(3, kx, ky, rng.normal(size=(n0, n1)), rng.uniform(0.5, 2.0, (n0, n1)),
+                       (100.0, -50.0, 3.0))
+    t = np.linspace(0.0, 1.0, 4001)
+    x = np.r_[-1e-10, 10.0 * t, kx, 10.0 + 1e-10, 7.0, 7.0, 10.0 * t[::-1], 11.0, 5.0]
+    y = np.r_[6.0, -3.0 + 9.0 * t ** 2, np.resize(ky, kx.size), -3.0 - 1e-10, 0.2, 0.5, 6.0 * t, 0.0, 1.0]
+    points = np.c_[x + 100.0, y - 50.0, rng.normal(3.0, 1.0, x.size)]
+    points[7] = np.nan
+    points[-1, 2] = np.inf
+    alone = np.array([kb.heights_above_serial(points[k:k + 1], 100.0, -50.0, 3.0, kx, ky, 3,
+                                              s.control_points, s.weights, 1e-9, 1e-9)[0]
+                      for k in range(x.size)])
+    serial = kb.heights_above_serial(points, 100.0, -50.0, 3.0, kx, ky, 3, s.control_points,
+                                     s.weights, 1e-9, 1e-9)
+    parallel = kb.heights_above(points, 100.0, -50.0, 3.0, kx, ky, 3, s.control_points,
+                                s.weights, 1e-9, 1e-9)
+    assert np.array_equal(serial, alone, equal_nan=True)
+    assert np.array_equal(parallel, alone, equal_nan=True)
+    assert np.isnan(alone[[7, -2, -1]]).all() and np.isfinite(alone[[0, 1, -3]]).all()
+
+
 def test_raster_and_mesh_export():
     rng = np.random.default_rng(8)
     s = random_surface(rng)
