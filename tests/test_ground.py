@@ -132,7 +132,7 @@ def test_compact_rise_matches_its_definition(rng):
     assert neighbour_rise(low, 0.5, 1.0)[1, 1] == pytest.approx(0.4)
 
 
-@pytest.mark.parametrize("shape", [(23, 17), (1, 6), (6, 1), (40, 33)])
+@pytest.mark.parametrize("shape", [(23, 17), (1, 6), (6, 1), (40, 33), (1, 1), (2, 3)])
 def test_prior_seeds_equals_the_separate_kernels(rng, shape):
     # the fused kernel of the terrain prior gives the values of the plain cone envelope, wall
     # test (tests/naive.py) and window_min composed
