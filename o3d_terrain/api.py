@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ._kernels import positions as _positions
 from .errors import ConfigError, InputError, checked_keywords
 from .frame import LABELS, Frame, as_frame, warn_coarse_float32
 from .grid import region_of
@@ -102,11 +103,15 @@ _STAGE_CACHE: dict = {}
 
 def _array_positions(cloud: Any) -> np.ndarray | None:
     """(N, 3) float64 positions of a numeric (N, 3)/(N, 4) numpy array without making a frame
-    (no copy when it is already float64 and C-ordered (N, 3)); None for anything else."""
+    (no copy when it is already float64 and C-ordered (N, 3); a C-ordered float32 array, a
+    lidar's usual rows, in one pass of :func:`~o3d_terrain._kernels.positions.xyz_float64`);
+    None for anything else."""
     if not (isinstance(cloud, np.ndarray) and cloud.ndim == 2 and cloud.shape[1] in (3, 4)
             and cloud.dtype != object and np.issubdtype(cloud.dtype, np.number)):
         return None
     warn_coarse_float32(cloud)
+    if cloud.dtype == np.float32 and cloud.flags.c_contiguous:
+        return _positions.xyz_float64(cloud)
     return np.ascontiguousarray(cloud[:, :3], dtype=np.float64)
 
 

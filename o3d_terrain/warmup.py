@@ -91,6 +91,8 @@ def warm_up() -> WarmupReport:
     steps.append("lidar stage chain")
     positions = np.array(result.frame.positions, dtype=np.float64)
     segment_terrain(positions)
+    # a lidar's float32 (x, y, z, intensity) rows, as KITTI stores them
+    segment_terrain(np.c_[positions, np.zeros(len(positions))].astype(np.float32))
     segment_terrain(o3d.t.geometry.PointCloud(o3d.core.Tensor(positions)))
     segment_terrain(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions)))
     segment_terrain(_ridged_slope())

@@ -281,6 +281,20 @@ def test_ground_centre_and_spread_are_numpys_medians():
     assert _bs.ground_centre_spread(heights, 1, 5.0, 6.0)[2] == 0
 
 
+def test_float32_rows_become_the_float64_positions_numpy_casts():
+    from o3d_terrain._kernels.positions import xyz_float64
+
+    rows = np.random.default_rng(4).normal(0, 50, (1001, 4)).astype(np.float32)
+    rows[3] = (np.nan, np.inf, -np.inf, 1.0)
+    rows[4, :3] = (-0.0, np.float32(1e-45), np.finfo(np.float32).max)
+    for values in (rows, np.ascontiguousarray(rows[:, :3]), rows[:0]):
+        got = xyz_float64(values)
+        assert got.dtype == np.float64 and got.flags.c_contiguous and got.shape == (len(values), 3)
+        expected = values[:, :3].astype(np.float64)
+        assert np.array_equal(got, expected, equal_nan=True)
+        assert np.array_equal(np.signbit(got), np.signbit(expected))
+
+
 def test_array_inputs_equal_the_frame_path_and_options_are_checked_every_call():
     # numpy arrays skip the frame; (N, 4) float32 and a tensor cloud give the same fit
     pts, _ = scene(5, n=6_000)

@@ -18,11 +18,12 @@ ROOT = Path(__file__).resolve().parents[1]
 LAS_TILES = ("las/4_6_crop.las", "las/autzen_trim.laz", "las/hexbin-crop.las")
 
 #: in a fresh interpreter: warm up, note each kernel's machine code, then run what users run
-#: (the packaged lidar and stereo pipelines, segment_terrain on another scene and sensor, on
-#: every numba thread and on one, and on a scan in a map frame; the packaged LAS pipeline on
-#: a generated airborne tile with two returns per pulse here and there, written as LAS, and
-#: on the real tiles given after the output folder, and segment_terrain on the tile as read)
-#: and list the kernels that had to compile or load more code after the warm-up
+#: (the packaged lidar and stereo pipelines, segment_terrain on another scene and sensor, also
+#: as float32 rows, on every numba thread and on one, and on a scan in a map frame; the
+#: packaged LAS pipeline on a generated airborne tile with two returns per pulse here and
+#: there, written as LAS, and on the real tiles given after the output folder, and
+#: segment_terrain on the tile as read) and list the kernels that had to compile or load more
+#: code after the warm-up
 _PROBE = """
 import json, sys
 import numba
@@ -60,6 +61,8 @@ for tile in tiles:
 segment_terrain(np.asarray(p, dtype=np.float64))
 cloud = sample_lidar(make_scene("hills", seed=3), tilt_deg=(4.0, -3.0), seed=3)
 segment_terrain(np.asarray(cloud.positions, dtype=np.float64))
+# a lidar's float32 (x, y, z, intensity) rows, as KITTI stores them
+segment_terrain(np.c_[cloud.positions, np.ones(len(cloud.positions))].astype(np.float32))
 numba.set_num_threads(1)  # one thread takes the serial twins of the parallel kernels
 segment_terrain(np.asarray(cloud.positions, dtype=np.float64))
 # a scan in a map frame, its sensor found from the scan
