@@ -288,3 +288,42 @@ def test_repr_is_a_summary_not_the_arrays(rng):
     text = repr(grid)
     assert text.startswith("HeightGrid(cells=(20, 20), cell_size=1.0, region=(")
     assert "points=5000" in text and "array" not in text and len(text) < 200
+
+
+def test_cell_planes_kernel_equals_the_covariance_of_each_cells_points(rng):
+    """The per-slot plane of the cell_planes kernel (the face cells' planes) against each
+    wanted cell's points' covariance by numpy: points in runs of one cell as a scan gives
+    them, some cells' points scattered, non-finite coordinates, points outside the grid and
+    on its far edge; cells not wanted and with fewer than 3 points give nothing."""
+    from o3d_terrain._kernels.grid import cell_planes
+
+    nx, ny, cell = 6, 5, 0.5
+    centres = rng.integers(0, nx * ny, 300)
+    runs = np.repeat(centres, rng.integers(1, 8, centres.size))
+    ix, iy = np.divmod(runs, ny)
+    x = (ix + rng.uniform(0, 1, runs.size)) * cell
+    y = (iy + rng.uniform(0, 1, runs.size)) * cell
+    z = 0.3 * x - 0.2 * y + rng.normal(0, 0.05, runs.size)
+    pts = np.c_[x, y, z]
+    pts[::37, 2] = np.nan
+    pts[::41, 0] = np.inf
+    pts[5] = (-0.1, 1.0, 0.0)  # outside
+    pts[6] = (nx * cell, ny * cell, 0.0)  # the far corner: the last cell
+    slot = np.full(nx * ny, -1, np.int64)
+    wanted = rng.permutation(nx * ny)[:20]
+    slot[wanted] = np.arange(wanted.size)
+    base = rng.normal(0, 1, nx * ny)
+    normal, thickness, width = cell_planes(pts, 0.0, 0.0, cell, nx, ny, slot, wanted.size, base)
+    finite = np.isfinite(pts).all(axis=1) & (pts[:, 0] >= 0)
+    cx = np.minimum((np.where(finite, pts[:, 0], 0) / cell).astype(int), nx - 1)
+    cy = np.minimum((np.where(finite, pts[:, 1], 0) / cell).astype(int), ny - 1)
+    for s, c in enumerate(wanted):
+        mine = pts[finite & (cx * ny + cy == c)]
+        if len(mine) < 3:
+            assert np.isnan(normal[s]).all() and np.isnan(thickness[s]) and np.isnan(width[s])
+            continue
+        values, vectors = np.linalg.eigh(np.cov(mine.T, bias=True))
+        expected = vectors[:, 0] * np.sign(vectors[2, 0])
+        np.testing.assert_allclose(normal[s], expected, atol=1e-7)
+        np.testing.assert_allclose(thickness[s], np.sqrt(max(values[0], 0.0)), atol=1e-7)
+        np.testing.assert_allclose(width[s], np.sqrt(max(values[1], 0.0)), atol=1e-7)

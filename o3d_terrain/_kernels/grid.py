@@ -665,6 +665,22 @@ def finite_bounds(x, y, z):
     return x_min, x_max, y_min, y_max, n
 
 
+@numba.njit(cache=True, inline="always")
+def _store_moment_sums(sums, s, r_n, r_x, r_y, r_z, r_xx, r_xy, r_xz, r_yy, r_yz, r_zz):
+    """Write the ten running sums of slot ``s`` (held in registers by :func:`cell_planes`)
+    back into ``sums``."""
+    sums[s, 0] = r_n
+    sums[s, 1] = r_x
+    sums[s, 2] = r_y
+    sums[s, 3] = r_z
+    sums[s, 4] = r_xx
+    sums[s, 5] = r_xy
+    sums[s, 6] = r_xz
+    sums[s, 7] = r_yy
+    sums[s, 8] = r_yz
+    sums[s, 9] = r_zz
+
+
 @numba.njit(cache=True)
 def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
     """Per slot (``slot``: flat cell index -> slot, -1 for cells not wanted; ``count`` slots)
@@ -673,31 +689,57 @@ def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
     direction (the covariance's least and middle eigenvalues, square-rooted), (count,) each;
     NaN for slots with fewer than 3 points. One pass over the points, the sums taken about
     the cell's centre and ``base[c]`` (a height in the cell, e.g. its lowest) so that they
-    stay small; non-finite points and points outside the grid are skipped."""
-    # the cells in a loop of their own, as quantize finds them (vectorised)
-    cells = cell_indices(positions[:, 0], positions[:, 1], x_min, y_min, cell_size, nx, ny)
+    stay small; non-finite points and points outside the grid are skipped. The points' cells
+    come first, in a loop of their own (:func:`_cells_of`, as :func:`quantize` finds them:
+    vectorised, -2 also for a non-finite z); a run of consecutive points in one cell is
+    summed in registers and stored once at its end (the same additions in the same order as
+    one store per point, :func:`_cell_sums`)."""
+    n = positions.shape[0]
+    cells = np.empty(n, np.int32)
+    _cells_of(positions.reshape(3 * n), x_min, y_min, cell_size, 0.0, nx, ny, cells)
     sums = np.zeros((count, 10))  # n, x, y, z, xx, xy, xz, yy, yz, zz
-    for k in range(positions.shape[0]):
+    current = -1  # the cell whose sums are in the registers below
+    s = 0
+    centre_x = centre_y = low = 0.0
+    r_n = r_x = r_y = r_z = r_xx = r_xy = r_xz = r_yy = r_yz = r_zz = 0.0
+    for k in range(n):
         c = cells[k]
         if c < 0 or slot[c] < 0:
             continue
-        z = positions[k, 2]
-        if not math.isfinite(z):
-            continue
-        s = slot[c]
-        dx = positions[k, 0] - (x_min + (c // ny + 0.5) * cell_size)
-        dy = positions[k, 1] - (y_min + (c % ny + 0.5) * cell_size)
-        dz = z - base[c]
-        sums[s, 0] += 1.0
-        sums[s, 1] += dx
-        sums[s, 2] += dy
-        sums[s, 3] += dz
-        sums[s, 4] += dx * dx
-        sums[s, 5] += dx * dy
-        sums[s, 6] += dx * dz
-        sums[s, 7] += dy * dy
-        sums[s, 8] += dy * dz
-        sums[s, 9] += dz * dz
+        if c != current:
+            if current >= 0:
+                _store_moment_sums(sums, s, r_n, r_x, r_y, r_z, r_xx, r_xy, r_xz, r_yy, r_yz,
+                                   r_zz)
+            current = c
+            s = slot[c]
+            centre_x = x_min + (c // ny + 0.5) * cell_size
+            centre_y = y_min + (c % ny + 0.5) * cell_size
+            low = base[c]
+            r_n = sums[s, 0]
+            r_x = sums[s, 1]
+            r_y = sums[s, 2]
+            r_z = sums[s, 3]
+            r_xx = sums[s, 4]
+            r_xy = sums[s, 5]
+            r_xz = sums[s, 6]
+            r_yy = sums[s, 7]
+            r_yz = sums[s, 8]
+            r_zz = sums[s, 9]
+        dx = positions[k, 0] - centre_x
+        dy = positions[k, 1] - centre_y
+        dz = positions[k, 2] - low
+        r_n += 1.0
+        r_x += dx
+        r_y += dy
+        r_z += dz
+        r_xx += dx * dx
+        r_xy += dx * dy
+        r_xz += dx * dz
+        r_yy += dy * dy
+        r_yz += dy * dz
+        r_zz += dz * dz
+    if current >= 0:
+        _store_moment_sums(sums, s, r_n, r_x, r_y, r_z, r_xx, r_xy, r_xz, r_yy, r_yz, r_zz)
     normal = np.full((count, 3), np.nan)
     thickness = np.full(count, np.nan)
     width = np.full(count, np.nan)
