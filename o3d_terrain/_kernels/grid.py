@@ -748,13 +748,8 @@ def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
         n = sums[s, 0]
         if n < 3:
             continue
-        mx, my, mz = sums[s, 1] / n, sums[s, 2] / n, sums[s, 3] / n
-        a[0, 0] = sums[s, 4] / n - mx * mx
-        a[0, 1] = a[1, 0] = sums[s, 5] / n - mx * my
-        a[0, 2] = a[2, 0] = sums[s, 6] / n - mx * mz
-        a[1, 1] = sums[s, 7] / n - my * my
-        a[1, 2] = a[2, 1] = sums[s, 8] / n - my * mz
-        a[2, 2] = sums[s, 9] / n - mz * mz
+        _moment_covariance(a, n, sums[s, 1], sums[s, 2], sums[s, 3], sums[s, 4], sums[s, 5],
+                          sums[s, 6], sums[s, 7], sums[s, 8], sums[s, 9])
         least, middle = _symmetric_eigenvalues(a)
         if not _eigenvector(a, least, normal[s]):
             continue
@@ -764,6 +759,19 @@ def cell_planes(positions, x_min, y_min, cell_size, nx, ny, slot, count, base):
         thickness[s] = math.sqrt(max(least, 0.0))
         width[s] = math.sqrt(max(middle, 0.0))
     return normal, thickness, width
+
+
+@numba.njit(cache=True)
+def _moment_covariance(a, n, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz):
+    """Fill the 3 x 3 ``a`` with the covariance of ``n`` points from their sums: sx = sum
+    of x, sxy = sum of x y, and so on (the means' products taken off the second moments)."""
+    mx, my, mz = sx / n, sy / n, sz / n
+    a[0, 0] = sxx / n - mx * mx
+    a[0, 1] = a[1, 0] = sxy / n - mx * my
+    a[0, 2] = a[2, 0] = sxz / n - mx * mz
+    a[1, 1] = syy / n - my * my
+    a[1, 2] = a[2, 1] = syz / n - my * mz
+    a[2, 2] = szz / n - mz * mz
 
 
 @numba.njit(cache=True)

@@ -44,7 +44,7 @@ import math
 import numba
 import numpy as np
 
-from .grid import _eigenvector, _symmetric_eigenvalues
+from .grid import _eigenvector, _symmetric_eigenvalues, _moment_covariance
 
 #: cells per axis of the neighbour grid at most (the cell grows beyond ``radius`` to keep this)
 _MAX_CELLS = 4096.0
@@ -664,14 +664,7 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
                 syy += v * v
                 syz += v * w
                 szz += w * w
-            total = count + 1.0
-            mx, my, mz = sx / total, sy / total, sz / total
-            cov[0, 0] = sxx / total - mx * mx
-            cov[0, 1] = cov[1, 0] = sxy / total - mx * my
-            cov[0, 2] = cov[2, 0] = sxz / total - mx * mz
-            cov[1, 1] = syy / total - my * my
-            cov[1, 2] = cov[2, 1] = syz / total - my * mz
-            cov[2, 2] = szz / total - mz * mz
+            _moment_covariance(cov, count + 1.0, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz)
             lowest, _ = _symmetric_eigenvalues(cov)
             if _eigenvector(cov, lowest, normal):
                 if abs(normal[2]) < 0.1:  # a near-vertical plane: a face
