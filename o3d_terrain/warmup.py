@@ -75,6 +75,7 @@ def warm_up() -> WarmupReport:
     (:func:`_top_down_tile`). Returns the :class:`WarmupReport`."""
     import open3d as o3d
 
+    from ._kernels.positions import xyz_float64
     from .api import fit_terrain, segment_terrain
     from .pipeline import parse_pipeline
     from .stages import ObstacleDetector
@@ -91,8 +92,9 @@ def warm_up() -> WarmupReport:
     steps.append("lidar stage chain")
     positions = np.array(result.frame.positions, dtype=np.float64)
     segment_terrain(positions)
-    # a lidar's float32 (x, y, z, intensity) rows, as KITTI stores them
-    segment_terrain(np.c_[positions, np.zeros(len(positions))].astype(np.float32))
+    # a lidar's float32 (x, y, z, intensity) rows, as KITTI stores them, become float64
+    # positions in their own kernel; everything after it is the float64 path above
+    xyz_float64(np.zeros((1, 4), np.float32))
     segment_terrain(o3d.t.geometry.PointCloud(o3d.core.Tensor(positions)))
     segment_terrain(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions)))
     segment_terrain(_ridged_slope())
