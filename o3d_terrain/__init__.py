@@ -16,7 +16,8 @@ plain calls: ``frame = GridQuantize(cell_size=0.5)(pcd)``.
 
 __version__ = "0.1.0"
 
-from .errors import ConfigError, InputError, O3DTerrainError, StageError, TerrainWarning
+from .errors import (ConfigError, InputError, NotACloudError, O3DTerrainError, StageError,
+                     TerrainWarning)
 from .frame import Frame, as_frame
 from .grid import HeightGrid, quantize_points
 from .io import read_cloud, write_cloud
@@ -37,7 +38,8 @@ from ._malloc import keep_freed_memory
 
 __all__ = [
     "__version__",
-    "ConfigError", "InputError", "O3DTerrainError", "StageError", "TerrainWarning",
+    "ConfigError", "InputError", "NotACloudError", "O3DTerrainError", "StageError",
+    "TerrainWarning",
     "Frame", "as_frame", "HeightGrid", "quantize_points",
     "read_cloud", "write_cloud",
     "STAGES", "GridQuantize", "ReadCloud",

@@ -16,7 +16,8 @@ from typing import Sequence
 from . import __version__
 from .docgen import describe_text, list_text
 from ._malloc import keep_freed_memory
-from .errors import ConfigError, O3DTerrainError, Problem, TerrainWarning, did_you_mean
+from .errors import (ConfigError, NotACloudError, O3DTerrainError, Problem, TerrainWarning,
+                     did_you_mean)
 from .pipeline import load_pipeline, unchecked_attributes
 from .stages import STAGES
 from .writers import WRITERS
@@ -160,16 +161,14 @@ class _Input:
     folder: Path | None = None
 
     def skipped(self, exc: BaseException) -> str | None:
-        """The message for a file of a folder that could not be read as a point cloud (a
-        KITTI sequence's ``calib.txt`` or ``times.txt``), with the ``velodyne/`` folder to
-        give instead when the folder has one; None for any other failure (a cloud file cut
-        short is a cloud that failed)."""
-        if self.folder is None or not str(exc).startswith("source ReadCloud:"):
+        """The message for a file of a folder that holds no point cloud (a
+        :class:`NotACloudError` about this file: a KITTI sequence's ``calib.txt`` or
+        ``times.txt``), with the ``velodyne/`` folder to give instead when the folder has
+        one; None for any other failure (a cloud file cut short is a cloud that failed)."""
+        if (self.folder is None or not isinstance(exc, NotACloudError)
+                or Path(exc.path).resolve() != self.path.resolve()):
             return None
-        reason = str(exc).removeprefix("source ReadCloud: ").removeprefix(f"{self.path}: ")
-        if reason.startswith("truncated:"):
-            return None
-        text = f"{self.path}: skipped, not a point cloud ({reason})"
+        text = f"{self.path}: skipped, not a point cloud ({exc.reason})"
         if (self.folder / KITTI_SCANS).is_dir():
             text += (f"; {self.folder} looks like a KITTI sequence folder: pass its scans with "
                      f"--input {self.folder / KITTI_SCANS}")

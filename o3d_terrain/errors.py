@@ -61,8 +61,43 @@ class InputError(O3DTerrainError, ValueError):
     """The data given to a stage cannot be processed (empty cloud, too few valid cells, bad file)."""
 
 
+class NotACloudError(InputError):
+    """A file that holds no point cloud at all (a KITTI sequence's ``calib.txt`` or
+    ``times.txt``, a ``.npy`` array that is not (N, 3) or (N, 4), a file with no points), as
+    against a cloud file cut short or corrupt, which is a plain :class:`InputError`.
+    ``o3d-terrain run`` skips such a file of a folder it was given instead of failing it.
+
+    ``path`` is the file and ``reason`` what is wrong with it; the message is
+    "{path}: {reason}" with whatever a stage or the pipeline puts before it
+    (:func:`reworded` keeps both attributes)."""
+
+    def __init__(self, path: str | os.PathLike, reason: str):
+        super().__init__(f"{os.fspath(path)}: {reason}")
+        self.path = os.fspath(path)
+        self.reason = reason
+
+    def __reduce__(self):  # pickled and copied as it is, reworded or not
+        return _with_message, (type(self), str(self), dict(self.__dict__))
+
+
 class StageError(O3DTerrainError, RuntimeError):
     """A stage failed while running; the message starts with the stage name."""
+
+
+_E = TypeVar("_E", bound=BaseException)
+
+
+def reworded(exc: _E, message: str) -> _E:
+    """An exception of the type of ``exc``, with its attributes, whose message is
+    ``message``: how a stage or the pipeline says where an error happened without changing
+    its kind (a :class:`NotACloudError` stays one, with its ``path`` and ``reason``)."""
+    return _with_message(type(exc), message, exc.__dict__)
+
+
+def _with_message(cls: type[_E], message: str, state: Mapping[str, object]) -> _E:
+    exc = cls.__new__(cls, message)  # BaseException.__new__ sets args; __init__ is skipped
+    exc.__dict__.update(state)
+    return exc
 
 
 def did_you_mean(name: str, candidates: Sequence[str], n: int = 1) -> str:

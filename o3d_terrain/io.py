@@ -46,7 +46,7 @@ import numpy as np
 import open3d as o3d
 
 from ._files import output_path
-from .errors import InputError, TerrainWarning, did_you_mean, warn
+from .errors import InputError, NotACloudError, TerrainWarning, did_you_mean, warn
 from .frame import (
     NUMBER_OF_RETURNS,
     RETURN_NUMBERS,
@@ -71,6 +71,9 @@ FILE_ATTRIBUTES = {
                                        NUMBER_OF_RETURNS, "colors")),
 }
 WRITE_EXTENSIONS = (".ply", ".pcd", ".npz", ".xyz", ".txt")
+#: formats with no header of their own that says what the file holds (a ``.npy`` header
+#: declares an array, not a cloud): their reader failing means the file holds no cloud
+_HEADERLESS_EXTENSIONS = (".xyz", ".txt", ".csv", ".pts", ".npy", ".bin")
 
 
 def file_attributes(path: str | os.PathLike) -> tuple[str, ...] | None:
@@ -89,7 +92,7 @@ def _check_readable(path: Path) -> None:
     if not os.access(path, os.R_OK):
         raise InputError(f"{path}: not readable (permission denied)")
     if path.stat().st_size == 0:
-        raise InputError(f"{path}: the file is empty")
+        raise NotACloudError(path, "the file is empty")
 
 
 def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geometry.PointCloud:
@@ -107,7 +110,10 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
     A file that cannot be read is an :class:`InputError` naming it and what is wrong; a PLY
     file is checked against its header first (a bad header line, a file cut short, a word
     that is not a number), since Open3D's reader returns such a file's missing points as
-    whatever memory held.
+    whatever memory held. A file that holds no point cloud at all (empty, no points, text
+    that is not rows of x y z, a ``.npy`` that is not (N, 3) or (N, 4), a ``.ply`` or LAS
+    file without its format's signature) is the subclass
+    :class:`~o3d_terrain.errors.NotACloudError`; a cloud file cut short or corrupt is not.
     """
     if units not in UNITS:
         raise InputError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
@@ -133,8 +139,11 @@ def read_cloud(path: str | os.PathLike, *, units: str = "metres") -> o3d.t.geome
         return _read_las(path, to_metres=units == "metres")
     except (InputError, Warning):  # a warning made an error by the caller's filter stays one
         raise
-    except Exception as exc:  # a reader library failed on a corrupt file
-        raise InputError(f"{path}: could not be read as {suffix} ({exc})") from exc
+    except Exception as exc:  # a reader library failed on the file
+        reason = f"could not be read as {suffix} ({exc})"
+        if suffix in _HEADERLESS_EXTENSIONS:  # calib.txt, times.txt: no cloud at all
+            raise NotACloudError(path, reason) from exc
+        raise InputError(f"{path}: {reason}") from exc
 
 
 def _read_open3d(path: Path) -> o3d.t.geometry.PointCloud:
@@ -144,7 +153,7 @@ def _read_open3d(path: Path) -> o3d.t.geometry.PointCloud:
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cloud = o3d.t.io.read_point_cloud(str(path))
     if "positions" not in cloud.point or cloud.point.positions.shape[0] == 0:
-        raise InputError(f"{path}: Open3D read no points (corrupt or empty file?)")
+        raise NotACloudError(path, "Open3D read no points (corrupt or empty file?)")
     return as_frame(cloud).cloud
 
 
@@ -176,7 +185,7 @@ def _ply_header(path: Path) -> tuple[str, list[_PlyElement], int, int]:
     form, elements = None, []
     with open(path, "rb") as handle:
         if handle.readline(16).strip() != b"ply":
-            raise InputError(f"{path}: does not start with 'ply' (not a PLY file)")
+            raise NotACloudError(path, "does not start with 'ply' (not a PLY file)")
         size, number = handle.tell(), 1
         while size < _PLY_HEADER_LIMIT:
             raw = handle.readline(_PLY_HEADER_LIMIT)
@@ -281,17 +290,17 @@ def _read_text(path: Path) -> np.ndarray:
         warnings.simplefilter("ignore", UserWarning)
         data = np.loadtxt(path, delimiter=delimiter, skiprows=skip, ndmin=2, comments="#")
     if data.size == 0:
-        raise InputError(f"{path}: no points (an empty text file)")
+        raise NotACloudError(path, "no points (an empty text file)")
     if data.shape[1] < 3:
-        raise InputError(f"{path}: expected at least 3 columns (x y z), found {data.shape[1]}")
+        raise NotACloudError(path, f"expected at least 3 columns (x y z), found {data.shape[1]}")
     return data[:, :4]
 
 
 def _from_array(array: np.ndarray, path: Path) -> o3d.t.geometry.PointCloud:
     if array.ndim != 2 or array.shape[1] not in (3, 4):
-        raise InputError(f"{path}: expected an (N, 3) or (N, 4) array, got shape {array.shape}")
+        raise NotACloudError(path, f"expected an (N, 3) or (N, 4) array, got shape {array.shape}")
     if len(array) == 0:
-        raise InputError(f"{path}: contains no points")
+        raise NotACloudError(path, "contains no points")
     _warn_coarse_float32(array, path)
     return as_frame(np.asarray(array, dtype=np.float64)).cloud
 
@@ -310,10 +319,8 @@ def _warn_coarse_float32(positions: np.ndarray, path: Path) -> None:
 def _read_kitti_bin(path: Path) -> o3d.t.geometry.PointCloud:
     size = path.stat().st_size
     if size % 16:
-        raise InputError(
-            f"{path}: {size} bytes is not a whole number of KITTI points (16 bytes: x, y, z, "
-            "remission as float32)"
-        )
+        raise NotACloudError(path, f"{size} bytes is not a whole number of KITTI points (16 "
+                                   "bytes: x, y, z, remission as float32)")
     data = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
     _warn_coarse_float32(data, path)
     return cloud_from_numpy(data[:, :3].astype(np.float64), intensities=data[:, 3])
@@ -334,7 +341,8 @@ def _reading_las(path: Path):
     """laspy for reading ``path`` in the ``with`` block, whose failures become an
     :class:`InputError`: a missing LAZ backend names the extra that installs it, anything else
     (laspy raises many types on corrupt or unsupported files) says the file could not be read
-    as LAS/LAZ."""
+    as LAS/LAZ, a :class:`NotACloudError` when the file does not start with the LAS signature
+    ``LASF``."""
     laspy = _laspy(path, "reading")
     try:
         yield laspy
@@ -344,9 +352,23 @@ def _reading_las(path: Path):
                 f"{path}: reading LAZ needs a laspy backend; install the extra: "
                 "pip install 'o3d_terrain[las]' (laspy[lazrs])"
             ) from exc
-        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+        raise _las_failure(path, exc) from exc
     except Exception as exc:
-        raise InputError(f"{path}: could not be read as LAS/LAZ ({exc})") from exc
+        raise _las_failure(path, exc) from exc
+
+
+def _las_failure(path: Path, exc: Exception) -> InputError:
+    """The error of a file laspy could not read: corrupt or unsupported when it starts with
+    the LAS signature, else no LAS file at all."""
+    reason = f"could not be read as LAS/LAZ ({exc})"
+    try:
+        with open(path, "rb") as handle:
+            signature = handle.read(4)
+    except OSError:
+        signature = b""
+    if signature != b"LASF":
+        return NotACloudError(path, reason)
+    return InputError(f"{path}: {reason}")
 
 
 def open_las(path: str | os.PathLike):
@@ -356,7 +378,7 @@ def open_las(path: str | os.PathLike):
     with _reading_las(path) as laspy:
         las = laspy.read(str(path))
     if len(las.points) == 0:
-        raise InputError(f"{path}: contains no points")
+        raise NotACloudError(path, "contains no points")
     return las
 
 

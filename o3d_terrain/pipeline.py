@@ -29,7 +29,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import yaml
 
-from .errors import ConfigError, O3DTerrainError, Problem, StageError, did_you_mean
+from .errors import ConfigError, O3DTerrainError, Problem, StageError, did_you_mean, reworded
 from .frame import Frame, as_frame
 from .options import Component
 from .stages import STAGES, SourceStage, Stage
@@ -91,7 +91,7 @@ class Pipeline:
                 kept = (f" (the other outputs were written to {out}: "
                         f"{', '.join(p.name for p in written)})")
                 if len(failed) == 1:
-                    raise type(failed[0])(f"{failed[0]}{kept}") from failed[0]
+                    raise reworded(failed[0], f"{failed[0]}{kept}") from failed[0]
                 raise StageError(f"{len(failed)} outputs failed: "
                                  + "; ".join(str(e) for e in failed) + kept) from failed[0]
         return RunResult(frame, written, timings, time.perf_counter() - start)
@@ -130,7 +130,7 @@ def _no_stages_fix() -> str:
 def _located(call, location: str):
     """Run ``call``; prefix a failure's message with where in the pipeline it happened
     (``location`` ends with the stage's name, which a stage's own message starts with: it
-    is said once)."""
+    is said once); the error keeps its type and attributes (:func:`reworded`)."""
     try:
         return call()
     except ConfigError:
@@ -138,7 +138,7 @@ def _located(call, location: str):
     except O3DTerrainError as exc:
         text = str(exc)
         name = location.rsplit(" ", 1)[-1] + ": "
-        raise type(exc)(f"{location}: {text.removeprefix(name)}") from exc
+        raise reworded(exc, f"{location}: {text.removeprefix(name)}") from exc
     except KeyError as exc:  # a missing product or attribute
         raise StageError(f"{location}: {exc.args[0] if exc.args else exc}") from exc
 

@@ -89,6 +89,37 @@ def test_batch_keeps_going_past_a_bad_input(tmp_path, small_cloud, capfd):
     assert "1 of 2 inputs done" in captured.out
 
 
+def test_a_folder_file_is_skipped_by_the_kind_of_its_error_not_its_words(tmp_path, small_cloud,
+                                                                         capfd, monkeypatch):
+    """run over a folder skips a file whose reading raised NotACloudError and fails one whose
+    reading raised any other error, whatever their messages say."""
+    from o3d_terrain.errors import InputError, NotACloudError
+    from o3d_terrain.stages import read as read_stage
+
+    scans = tmp_path / "scans"
+    scans.mkdir()
+    for name in ("a.npy", "b.npy", "c.npy"):
+        np.save(scans / name, small_cloud)
+    reading = read_stage.read_cloud
+
+    def read_cloud(path, **kwargs):
+        if Path(path).name == "a.npy":
+            raise NotACloudError(path, "truncated: words a cloud cut short would use")
+        if Path(path).name == "b.npy":
+            raise InputError(f"{path}: not a point cloud, in so many words")
+        return reading(path, **kwargs)
+
+    monkeypatch.setattr(read_stage, "read_cloud", read_cloud)
+    path = _pipeline(tmp_path, scans / "c.npy")
+    assert main(["run", str(path), "-o", str(tmp_path / "out"), "-i", str(scans)]) == 1
+    captured = capfd.readouterr()
+    assert f"{scans / 'a.npy'}: skipped, not a point cloud (truncated: words a cloud cut short " \
+           "would use)" in captured.err
+    assert f"{scans / 'b.npy'}: FAILED: source ReadCloud: {scans / 'b.npy'}: not a point " \
+           "cloud, in so many words" in captured.err
+    assert "1 of 3 inputs done" in captured.out
+
+
 def test_one_input_option_takes_several_paths_and_the_pipeline_after_them(tmp_path, small_cloud,
                                                                           capsys):
     # a shell glob: -i scans/*.npy, the pipeline file before or after the inputs

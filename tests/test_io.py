@@ -4,7 +4,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from o3d_terrain import InputError, read_cloud, write_cloud
+from o3d_terrain import InputError, NotACloudError, read_cloud, write_cloud
 from o3d_terrain.frame import as_frame
 from o3d_terrain.io import file_attributes
 
@@ -248,6 +248,9 @@ def test_a_truncated_or_corrupt_ply_names_the_file_and_what_is_wrong(tmp_path, r
         with pytest.raises(InputError, match=expected) as info:
             read_cloud(path)
         assert str(info.value).startswith(f"{path}: "), name
+        # a PLY cut short or corrupt is a cloud that failed; only a file that is no PLY at
+        # all is not a cloud
+        assert isinstance(info.value, NotACloudError) == (name == "not_ply.ply"), name
     assert "RPly" not in capfd.readouterr().err  # nothing reached Open3D's reader
     # a valid binary file with a face list after its vertices, and an ASCII one, still read
     mesh = raw[:body].replace(b"end_header\n", b"element face 1\nproperty list uchar int "
@@ -256,3 +259,40 @@ def test_a_truncated_or_corrupt_ply_names_the_file_and_what_is_wrong(tmp_path, r
     np.testing.assert_allclose(_positions(read_cloud(tmp_path / "mesh.ply")), pts)
     (tmp_path / "ascii.ply").write_bytes(_ply(xyz, lines))
     np.testing.assert_allclose(_positions(read_cloud(tmp_path / "ascii.ply")), pts, atol=1e-5)
+
+
+def test_a_file_holding_no_cloud_is_a_not_a_cloud_error_through_stage_and_pipeline(tmp_path):
+    """NotACloudError (a file that holds no point cloud at all) against a plain InputError (a
+    cloud file cut short or corrupt); the kind, the file and the reason survive the ReadCloud
+    stage and the pipeline putting their names before the message."""
+    from o3d_terrain import GridQuantize, Pipeline, ReadCloud
+
+    (tmp_path / "calib.txt").write_text("P0: 7.07e+02 0.0 6.04e+02\nP1: 1 2 3 4\n")
+    (tmp_path / "times.txt").write_text("0.000000e+00\n1.036742e-01\n")
+    (tmp_path / "empty.bin").write_bytes(b"")
+    (tmp_path / "odd.bin").write_bytes(bytes(20))
+    np.save(tmp_path / "pairs.npy", np.zeros((5, 2)))
+    (tmp_path / "notes.las").write_bytes(b"not a LAS file at all" + bytes(400))
+    (tmp_path / "cut.las").write_bytes(b"LASF" + bytes(40))  # the signature, then nothing
+    not_clouds = {"calib.txt": "could not be read as .txt", "times.txt": "at least 3 columns",
+                  "empty.bin": "the file is empty", "odd.bin": "20 bytes is not a whole",
+                  "pairs.npy": r"got shape \(5, 2\)", "notes.las": "could not be read as LAS"}
+    for name, reason in not_clouds.items():
+        with pytest.raises(NotACloudError, match=reason) as info:
+            read_cloud(tmp_path / name)
+        assert info.value.path == str(tmp_path / name)
+        assert str(info.value) == f"{tmp_path / name}: {info.value.reason}"
+    with pytest.raises(InputError, match="could not be read as LAS") as info:
+        read_cloud(tmp_path / "cut.las")
+    assert not isinstance(info.value, NotACloudError)
+
+    path = str(tmp_path / "times.txt")
+    with pytest.raises(NotACloudError) as info:
+        ReadCloud(path=path)()
+    assert str(info.value).startswith(f"ReadCloud: {path}: ")
+    with pytest.raises(NotACloudError) as info:
+        Pipeline((GridQuantize(),), ReadCloud(path=path)).run()
+    assert str(info.value) == f"source ReadCloud: {path}: expected at least 3 columns (x y z), " \
+        "found 1"
+    assert (info.value.path, info.value.reason) == (path, "expected at least 3 columns (x y z), "
+                                                          "found 1")

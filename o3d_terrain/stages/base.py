@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, ClassVar
 
-from ..errors import InputError, StageError
+from ..errors import InputError, StageError, reworded
 from ..frame import Frame, as_frame
 from ..options import Component, component
 
@@ -58,8 +58,8 @@ class Stage(Component):
             return call()
         except InputError as exc:
             text = str(exc)
-            if not text.startswith(self.type_name):
-                raise InputError(f"{self.type_name}: {text}") from exc
+            if not text.startswith(self.type_name):  # of its kind (NotACloudError)
+                raise reworded(exc, f"{self.type_name}: {text}") from exc
             raise
 
     def run(self, frame: Frame) -> Frame:  # pragma: no cover - abstract
