@@ -25,7 +25,7 @@ import copy
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Collection, Iterable, Iterator, Mapping, Sequence
 
 import yaml
 
@@ -194,23 +194,31 @@ def _check_attributes(source: SourceStage | None, stages: Sequence[Stage],
         return []
     attributes = _attributes(given, stages)
     problems = []
+    for index, writer, option_name, attribute in _named_attributes(outputs, attributes):
+        hint = did_you_mean(attribute, attributes)
+        message, fix = _missing_product(attribute, source, replaced_source, "output",
+                                        declared="writes_attributes")
+        makers = [name for name, cls in STAGES.items()
+                  if attribute in cls.writes_attributes and not cls.is_source]
+        problems.append(Problem(
+            f"outputs[{index}] {writer.type_name}",
+            f"{option_name} '{attribute}' is not a per-point attribute the source "
+            f"{source.type_name} or a stage gives{message} (attributes: "
+            f"{', '.join(attributes)})",
+            hint or fix or (f"add {' or '.join(makers)} to the stages" if makers else
+                            "name one of the attributes listed")))
+    return problems
+
+
+def _named_attributes(outputs: Sequence[Writer],
+                      known: Collection[str]) -> Iterator[tuple[int, Writer, str, str]]:
+    """(index, writer, option name, attribute) of each per-point attribute the writers name
+    (``color_by``, ``attribute``) that is not in ``known``, in the order of the outputs and
+    of each writer's options."""
     for index, writer in enumerate(outputs):
         for option_name, attribute in writer.required_attributes().items():
-            if attribute in attributes:
-                continue
-            hint = did_you_mean(attribute, attributes)
-            message, fix = _missing_product(attribute, source, replaced_source, "output",
-                                            declared="writes_attributes")
-            makers = [name for name, cls in STAGES.items()
-                      if attribute in cls.writes_attributes and not cls.is_source]
-            problems.append(Problem(
-                f"outputs[{index}] {writer.type_name}",
-                f"{option_name} '{attribute}' is not a per-point attribute the source "
-                f"{source.type_name} or a stage gives{message} (attributes: "
-                f"{', '.join(attributes)})",
-                hint or fix or (f"add {' or '.join(makers)} to the stages" if makers else
-                                "name one of the attributes listed")))
-    return problems
+            if attribute not in known:
+                yield index, writer, option_name, attribute
 
 
 def _attributes(given: Iterable[str], stages: Sequence[Stage]) -> list[str]:
@@ -228,12 +236,10 @@ def unchecked_attributes(pipeline: Pipeline) -> list[str]:
         return []
     written = _attributes((), pipeline.stages)
     found = []
-    for index, writer in enumerate(pipeline.outputs):
-        for option_name, attribute in writer.required_attributes().items():
-            if attribute not in written:
-                hint = did_you_mean(attribute, written)
-                found.append(f"outputs[{index}] {writer.type_name}: {option_name} "
-                             f"'{attribute}'" + (f" ({hint})" if hint else ""))
+    for index, writer, option_name, attribute in _named_attributes(pipeline.outputs, written):
+        hint = did_you_mean(attribute, written)
+        found.append(f"outputs[{index}] {writer.type_name}: {option_name} '{attribute}'"
+                     + (f" ({hint})" if hint else ""))
     return found
 
 
