@@ -390,7 +390,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         return surface, np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
     frame = segmenter(_terrain_frame(frame, quantize, terrain))
     labels = frame.attribute(LABELS)
-    return frame.product("surface"), np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
+    terrain_indices = np.flatnonzero(labels == TerrainLabel.TERRAIN).astype(np.int64, copy=False)
+    return frame.product("surface"), terrain_indices
 
 
 def _segment_stages(origin, *, region, cell_size, control_points, degree, distance_threshold,

@@ -331,7 +331,8 @@ def parse_pipeline(config: Any, *, base_dir: str | Path | None = None,
     base = Path(base_dir) if base_dir is not None else None
     problems: list[Problem] = []
     if not isinstance(config, Mapping):
-        raise ConfigError(Problem("pipeline", f"must be a mapping with 'stages:', got {type(config).__name__}"))
+        raise ConfigError(Problem("pipeline", "must be a mapping with 'stages:', got "
+                                              f"{type(config).__name__}"))
     for key in config:
         if key not in TOP_LEVEL_KEYS:
             hint = did_you_mean(str(key), TOP_LEVEL_KEYS)

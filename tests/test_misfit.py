@@ -75,7 +75,7 @@ def test_gullies_the_surface_bridges_widen_the_threshold(rng, vehicle_scan):
 def test_widen_labels_changes_only_the_widened_points():
     heights = np.array([0.3, 0.3, -0.3, -0.3, 2.0, -2.0])
     local = np.array([0.2, 1.0, 0.2, 1.0, 1.5, 1.5])
-    O, B, T = TerrainLabel.OBSTACLE, TerrainLabel.BELOW_TERRAIN, TerrainLabel.TERRAIN
+    O, B, T = TerrainLabel.OBSTACLE, TerrainLabel.BELOW_TERRAIN, TerrainLabel.TERRAIN  # noqa: E741
     labels = np.array([O, O, B, B, O, B], np.uint8)  # as if below_threshold were 0.1
     widen_labels(labels, heights, local, 0.2)
     np.testing.assert_array_equal(labels, [O, T, B, T, O, B])

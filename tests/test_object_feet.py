@@ -14,7 +14,7 @@ from o3d_terrain.spline import make_lsq_surface
 from o3d_terrain.synthetic import (Obstacle, default_obstacles, make_scene, sample_lidar,
                                    sample_stereo)
 
-T, O, B, U = (int(v) for v in (TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,
+T, O, B, U = (int(v) for v in (TerrainLabel.TERRAIN, TerrainLabel.OBSTACLE,  # noqa: E741
                                TerrainLabel.BELOW_TERRAIN, TerrainLabel.UNKNOWN))
 
 

@@ -579,7 +579,8 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     empty arrays without ``plane``).
 
     Each point's cell is :func:`_cell`, found in a loop of its own before the first pass over
-    the points and kept for the later passes. Empty cells are filled by :func:`_fill_empty`. ``inverse`` > 0 must be exactly 1 / cell_size (a power of
+    the points and kept for the later passes. Empty cells are filled by :func:`_fill_empty`.
+    ``inverse`` > 0 must be exactly 1 / cell_size (a power of
     two cell size): the coordinates are then scaled by a multiplication, which gives the
     quotient bit for bit. Points with a non-finite x, y or z, or outside the grid, are
     skipped and counted: the result ends with (number non-finite, number outside the grid).

@@ -397,7 +397,8 @@ def prior_seeds(low, measured, cell_size, gap_slope, slope, tolerance, radius):
             h = low[i, j]
             if not np.isfinite(h):
                 continue
-            if h > _least_neighbour(env, i, j, s1, s2) + tolerance:  # above the slope cone of a neighbour: a wall's top
+            # above the slope cone of a neighbour: a wall's top
+            if h > _least_neighbour(env, i, j, s1, s2) + tolerance:
                 gap[i, j] = np.inf
             else:
                 seeds[i, j] = measured[i, j] and h <= lowest_around[i, j]

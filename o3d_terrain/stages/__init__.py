@@ -5,16 +5,10 @@ from .grid_quantize import GridQuantize
 from .read import ReadCloud
 from .synthetic import SyntheticScene
 from .stereo import StereoToCloud
-
-__all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize", "ReadCloud"]
-__all__ += ["SyntheticScene"]
-__all__ += ["StereoToCloud"]
 from .obstacles import ObstacleDetector, TraversabilityCost
-
-__all__ += ["ObstacleDetector", "TraversabilityCost"]
 from .terrain import RationalBSplineTerrain, Segmenter, SlopeEstimator
-
-__all__ += ["RationalBSplineTerrain", "SlopeEstimator", "Segmenter"]
 from .level import LevelCloud
 
-__all__ += ["LevelCloud"]
+__all__ = ["STAGES", "Stage", "SourceStage", "stage", "GridQuantize", "ReadCloud",
+           "SyntheticScene", "StereoToCloud", "ObstacleDetector", "TraversabilityCost",
+           "RationalBSplineTerrain", "SlopeEstimator", "Segmenter", "LevelCloud"]

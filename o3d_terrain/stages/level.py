@@ -21,7 +21,8 @@ class LevelCloud(Stage):
     """Level a tilted sensor's cloud: turn it about the sensor so that ``up`` becomes +z.
 
     ``up`` is the direction opposite to gravity in the cloud's coordinates; the rotation is the
-    smallest one (the heading is kept). For a sensor mounted at a fixed tilt (a lidar pitched down on a haul truck): ``up`` from
+    smallest one (the heading is kept). For a sensor mounted at a fixed tilt (a lidar pitched
+    down on a haul truck): ``up`` from
     its mount calibration, e.g. ``[-0.259, 0, 0.966]`` for 15° nose down; for a vehicle that
     tilts with the ground, use :func:`o3d_terrain.level_cloud` per frame with its IMU's
     reading. The terrain, its slopes and the labels that follow are then in the levelled

@@ -171,7 +171,8 @@ def render_stereo_pair(scene: Scene, *, width: int = 640, height: int = 480,
     (default: the scene's sensor position) with heading ``yaw_deg`` and ``tilt_deg =
     (roll, pitch)`` (pitch positive = looking down). ``focal_px`` defaults to 0.8·width.
     Each pixel averages ``supersample``² rays (2 anti-aliases the far texture at 4× the cost;
-    semi-global matching does as well with 1); the true depth is that of the pixel centre. Gaussian noise of ``image_noise`` grey levels is added to each
+    semi-global matching does as well with 1); the true depth is that of the pixel centre.
+    Gaussian noise of ``image_noise`` grey levels is added to each
     image independently.
     """
     camera = Camera.make(width, height, focal_px)

@@ -224,7 +224,8 @@ class Scene:
         try:
             region = tuple(float(v) for v in region)
         except (TypeError, ValueError):
-            raise InputError(f"region must be 4 numbers (x_min, x_max, y_min, y_max); got {region!r}") from None
+            raise InputError("region must be 4 numbers (x_min, x_max, y_min, y_max); got "
+                             f"{region!r}") from None
         if len(region) != 4 or not all(math.isfinite(v) for v in region) \
                 or not (region[1] > region[0] and region[3] > region[2]):
             raise InputError("region must be 4 finite numbers with x_max > x_min and "
@@ -383,7 +384,9 @@ def _ellipsoid(obstacle: Obstacle, ground: float, segments: int) -> tuple[np.nda
 
 def _obstacle_set(rng: np.random.Generator) -> tuple[Obstacle, ...]:
     """One obstacle of every kind ahead of the sensor (positions fixed, small seeded jitter)."""
-    j = lambda: float(rng.uniform(-0.3, 0.3))
+    def j() -> float:  # a small seeded jitter of a position
+        return float(rng.uniform(-0.3, 0.3))
+
     return (
         Obstacle("pole", (8.0 + j(), 4.0 + j()), (0.2, 0.2), 3.0),
         Obstacle("pedestrian", (10.0 + j(), -2.5 + j()), (0.5, 0.5), 1.75),
@@ -489,7 +492,9 @@ def _crossing(rng):
     """Moving obstacles for sequences: a pedestrian crossing, a car coming, a truck leaving."""
     features = (Plane(slope_x=0.01), Hill(26.0, 10.0, 1.5, 4.0, 3.0),
                 Roughness.random(rng, amplitude=0.02))
-    j = lambda: float(rng.uniform(-0.3, 0.3))
+    def j() -> float:  # a small seeded jitter of a position
+        return float(rng.uniform(-0.3, 0.3))
+
     obstacles = (
         Obstacle("pedestrian", (12.0 + j(), -6.0 + j()), (0.5, 0.5), 1.75, velocity=(0.0, 1.4)),
         Obstacle("car", (30.0 + j(), 3.0 + j()), (4.5, 1.8), 1.5, yaw_deg=180.0,
