@@ -1,6 +1,7 @@
 # o3d_terrain: set-up, demo, tests, benchmarks.
 #   make demo   - create .venv, install, run the demo pipelines on a generated scene -> out/
 #   make test   - create .venv, install with test tools, run the test suite
+#   make lint   - ruff check with the rules pinned in pyproject.toml ([tool.ruff.lint])
 #   make bench  - install the peers (bench extra) and regenerate docs/benchmarks.md
 PYTHON ?= python3
 VENV   := .venv
@@ -9,7 +10,7 @@ PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.installed
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.venv/numba_cache
 
-.PHONY: demo test bench venv syslibs clean
+.PHONY: demo test lint bench venv syslibs clean
 
 # The open3d wheel loads the system library libusb-1.0 at import time.
 syslibs:
@@ -41,6 +42,10 @@ demo: venv
 
 test: venv
 	$(PY) -m pytest -q
+
+# ruff comes with the dev extra, which the venv installs for the tests
+lint: venv
+	$(VENV)/bin/ruff check
 
 bench: venv
 	$(PIP) install -q -e '.[las,dev,bench]'
