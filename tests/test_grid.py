@@ -108,6 +108,31 @@ def test_scan_order_runs_and_odd_values_match_reference(rng, cell):
     assert grid.skipped_nonfinite == nonfinite.sum()
     assert grid.skipped_nonfinite + grid.skipped_outside + count.sum() == len(pts)
 
+@pytest.mark.parametrize("order", ["scan", "random"])
+def test_cell_sums_in_place_and_side_by_side_agree(rng, order):
+    """The two ways of summing the cells (straight into the four arrays for points in runs
+    of one cell, side by side in one array for points one to a run) give the same values bit
+    for bit, with points outside the grid and non-finite ones among them; the kernel takes
+    the first for a scan's order and the second for random order."""
+    from o3d_terrain._kernels import grid as kernels
+    cell, n = 0.5, 4000
+    pts = rng.uniform(-0.5, 10.5, size=(n, 3))
+    if order == "scan":
+        pts = pts[np.lexsort((np.floor(pts[:, 1] / cell), np.floor(pts[:, 0] / cell)))]
+    pts[rng.choice(n, 30, replace=False), 2] = np.nan
+    flat = np.ascontiguousarray(pts).reshape(-1)
+    cells = np.empty(n, np.int32)
+    kernels._cells_of(flat, 0.0, 0.0, cell, 2.0, 20, 20, cells)
+    assert (cells == -1).any() and (cells == -2).any()
+    assert (2 * kernels._run_count(cells) > n) == (order == "random")
+    got = kernels._cell_sums(flat, cells, 400)
+    side = kernels._cell_sums_side_by_side(flat, cells, 400)
+    for a, b in zip(got, side):
+        np.testing.assert_array_equal(a, b)
+        assert np.asarray(a).dtype == np.asarray(b).dtype
+    assert got[-2] == 30 and got[0].sum() + got[-2] + got[-1] == n
+
+
 def test_equation_one_on_a_single_cell():
     z = np.array([1.0, 2.0, 3.0, 10.0])
     pts = np.column_stack([np.full(4, 0.1), np.full(4, 0.1), z])

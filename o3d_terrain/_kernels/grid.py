@@ -448,15 +448,77 @@ def _cells_of(flat, x_min, y_min, cell_size, inverse, nx, ny, cells):
 
 
 @numba.njit(cache=True)
+def _run_count(cells):
+    """The number of runs of consecutive equal entries of ``cells`` (branch-free: the
+    compiler vectorises the loop)."""
+    runs = min(cells.shape[0], 1)
+    for k in range(1, cells.shape[0]):
+        runs += cells[k] != cells[k - 1]
+    return runs
+
+
+@numba.njit(cache=True)
 def _cell_sums(flat, cells, m):
     """Per cell of ``cells`` (one per point, -1 outside, -2 non-finite) of the flat rows
-    ``flat``: the number of points, the sum, the lowest and the highest of their z (sums in
-    point order; inf, -inf in cells without points), then the numbers of non-finite and of
-    outside points. A run of consecutive points in one cell (the usual case in a scan's or
-    an image's order) is summed in registers and stored once at its end: the same additions
-    in the same order, without a store and a reload per point (which chain one point's
-    update to the next one's). The four per-cell values are kept side by side, so that a
-    point touches one cache line."""
+    ``flat``: the number of points, the mean, the lowest and the highest of their z (the sum
+    taken in point order, then divided by the number; 0, inf and -inf in cells without
+    points), then the numbers of non-finite and of outside points. A run of consecutive
+    points in one cell (the usual case in a scan's or an image's order) is summed in
+    registers and stored once at its end: the same additions in the same order, without a
+    store and a reload per point (which chain one point's update to the next one's). The
+    sums go straight into the arrays returned (the sum into ``mean``, divided in place), so
+    no per-cell array is filled twice; where the points come one to a run (random order:
+    each point would touch four arrays' cache lines), :func:`_cell_sums_side_by_side`.
+    The same values either way, bit for bit (tests/test_grid.py)."""
+    if 2 * _run_count(cells) > cells.shape[0]:  # fewer than 2 points a run
+        return _cell_sums_side_by_side(flat, cells, m)
+    count = np.zeros(m, np.int64)
+    mean = np.zeros(m)  # the sum of z until the division at the end
+    lowest = np.full(m, math.inf)
+    highest = np.full(m, -math.inf)
+    nonfinite = 0
+    outside = 0
+    current = -1
+    k_n = 0
+    k_t = k_lo = k_hi = 0.0  # the sums of the current run's cell
+    for k in range(cells.shape[0]):
+        c = cells[k]
+        if c < 0:
+            nonfinite += c == -2
+            outside += c == -1
+            continue
+        if c != current:
+            if current >= 0:
+                count[current] = k_n
+                mean[current] = k_t
+                lowest[current] = k_lo
+                highest[current] = k_hi
+            current = c
+            k_n = count[c]
+            k_t = mean[c]
+            k_lo = lowest[c]
+            k_hi = highest[c]
+        v = flat[3 * k + 2]
+        k_n += 1
+        k_t += v
+        k_lo = min(k_lo, v)  # branch-free (cells hold few points: branches mispredict)
+        k_hi = max(k_hi, v)
+    if current >= 0:
+        count[current] = k_n
+        mean[current] = k_t
+        lowest[current] = k_lo
+        highest[current] = k_hi
+    for c in range(m):
+        if count[c] > 0:
+            mean[c] /= count[c]
+    return count, mean, lowest, highest, nonfinite, outside
+
+
+@numba.njit(cache=True)
+def _cell_sums_side_by_side(flat, cells, m):
+    """:func:`_cell_sums` for points in short runs (random order): the four per-cell values
+    are summed side by side in one (m, 4) array, so that a point touches one cache line, and
+    copied out at the end (the same values bit for bit)."""
     sums = np.zeros((m, 4))  # count, total, lowest, highest
     for c in range(m):
         sums[c, 2] = math.inf
@@ -493,15 +555,16 @@ def _cell_sums(flat, cells, m):
         sums[current, 2] = k_lo
         sums[current, 3] = k_hi
     count = np.empty(m, np.int64)
-    total = np.empty(m)
+    mean = np.zeros(m)
     lowest = np.empty(m)
     highest = np.empty(m)
     for c in range(m):
         count[c] = np.int64(sums[c, 0])  # exact: counts stay far below 2^53
-        total[c] = sums[c, 1]
+        if count[c] > 0:
+            mean[c] = sums[c, 1] / count[c]
         lowest[c] = sums[c, 2]
         highest[c] = sums[c, 3]
-    return count, total, lowest, highest, nonfinite, outside
+    return count, mean, lowest, highest, nonfinite, outside
 
 
 @numba.njit(cache=True)
@@ -598,11 +661,7 @@ def quantize(positions, x_min, y_min, cell_size, nx, ny, min_points, fill_empty,
     flat = positions.reshape(3 * n)
     # the cells first, in a loop of their own (branch-free: the compiler vectorises it)
     _cells_of(flat, x_min, y_min, cell_size, inverse, nx, ny, cells)
-    count, total, lowest, highest, nonfinite, outside = _cell_sums(flat, cells, m)
-    mean = np.zeros(m)
-    for c in range(m):
-        if count[c] > 0:
-            mean[c] = total[c] / count[c]
+    count, mean, lowest, highest, nonfinite, outside = _cell_sums(flat, cells, m)
     use_layer = layer > 0.0
     squares, layer_count, layer_sum, layer_above = _cell_spreads(flat, cells, mean, lowest,
                                                                  layer, use_layer)
