@@ -47,7 +47,7 @@ _KEYWORD_HINTS = {
 #: the options of segment_terrain's labels (the Segmenter's), which fit_terrain does not take
 _LABEL_OPTIONS = ("distance_threshold", "below_threshold", "range_coefficient",
                   "misfit_threshold", "along_normal", "foot_height", "foot_lines",
-                  "line_of_sight", "ground_returns")
+                  "line_of_sight")
 _FIT_HINTS = {**_KEYWORD_HINTS, **{
     name: f"{name} is an option of segment_terrain's labels, not of the fit"
     for name in _LABEL_OPTIONS}}
@@ -117,7 +117,7 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
                     terrain_prior, range_noise, sensor_origin, max_slope_deg, cell_plane,
-                    refine, knots, low_returns=True):
+                    refine, knots, low_returns=True, ground_returns="last", grow_cells=True):
     """The GridQuantize and RationalBSplineTerrain stages of the api's options (cached)."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
@@ -132,7 +132,8 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
                      degree=degree, method=method, smoothing=smoothing,
                      terrain_prior=terrain_prior, max_slope_deg=max_slope_deg,
                      cell_plane=cell_plane, refine=refine, knots=knots,
-                     low_returns=low_returns, **noise)
+                     low_returns=low_returns, ground_returns=ground_returns,
+                     grow_cells=grow_cells, **noise)
     return quantize, terrain
 
 
@@ -244,7 +245,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 sensor_origin: Sequence[float] | None = None,
                 max_slope_deg: float | None = None,
                 cell_plane: bool = True, refine: bool = True,
-                knots: str = "auto", low_returns: bool = True) -> TerrainSurface:
+                knots: str = "auto", low_returns: bool = True, grow_cells: bool = True,
+                ground_returns: str = "last") -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -296,6 +298,17 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     fit without the points well below the thin layer of their cell
     (:func:`o3d_terrain.grid.without_low_returns`; docs/algorithm.md, "Returns from below the
     ground"); False = fit every point.
+    grow_cells: (default; robust method, a top-down scan: no points near ``sensor_origin``, an
+    airborne tile) where a cell of ``cell_size`` holds under 3/4 of a point where most of
+    the scan's points lie, the robust fit uses cells grown to hold about 3 (at most 3 m), so
+    that a cell under vegetation also holds a return from the ground; the refit (``refine``)
+    then fits the terrain points at ``cell_size`` (:func:`o3d_terrain.grid.grown_cell`;
+    docs/algorithm.md, "Cells for a sparse top-down scan"); False = ``cell_size``
+    throughout.
+    ground_returns: with a cloud that carries each point's ``return_numbers`` and
+    ``number_of_returns`` (a LAS/LAZ tile read by :func:`o3d_terrain.read_cloud`), "last"
+    (default) = fit the last return of each pulse only (one that went on past a point did
+    not stop at the ground there); "all" = fit every return.
 
     Runs the stages GridQuantize and RationalBSplineTerrain with these options (the same code
     as a pipeline).
@@ -303,7 +316,8 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     positions, frame, origin = _input(cloud, sensor_origin)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
-                                        max_slope_deg, cell_plane, refine, knots, low_returns)
+                                        max_slope_deg, cell_plane, refine, knots, low_returns,
+                                        ground_returns, grow_cells)
     if frame is None:  # numpy input: the stages' functions without a frame
         return _array_fit(positions, quantize, terrain)
     return _terrain_frame(frame, quantize, terrain).product("surface")
@@ -323,7 +337,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     knots: str = "auto",
                     foot_lines: float = FOOT_LINES,
                     line_of_sight: bool = True,
-                    low_returns: bool = True,
+                    low_returns: bool = True, grow_cells: bool = True,
                     ground_returns: str = "last") -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
@@ -361,7 +375,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     carries each point's ``return_numbers`` and ``number_of_returns`` (an Open3D tensor cloud
     from :func:`o3d_terrain.read_cloud` of a LAS/LAZ file, or a :class:`~o3d_terrain.Frame`),
     "last" (default) = a point that is not the last return of its pulse is never an inlier
-    (:func:`o3d_terrain.segment.earlier_returns`); "all" = every return may be one. Other
+    (:func:`o3d_terrain.segment.earlier_returns`) and the fit uses the last returns only;
+    "all" = every return may be one, and the fit uses them all. Other
     options as in :func:`fit_terrain` (``range_noise`` given as a coefficient uses
     ``sensor_origin``; ``refine`` refits the surface to the points its automatic labels call
     terrain before these labels are made; ``low_returns`` leaves isolated returns from below
@@ -378,6 +393,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         misfit_threshold=misfit_threshold, along_normal=along_normal, foot_height=foot_height,
         max_slope_deg=max_slope_deg, cell_plane=cell_plane, refine=refine, knots=knots,
         foot_lines=foot_lines, line_of_sight=line_of_sight, low_returns=low_returns,
+        grow_cells=grow_cells,
         ground_returns=ground_returns)
     if frame is None:  # numpy input: the stages' functions without a frame
         # the points' scan-line spacing, found once for the refit's labels and the final ones
@@ -398,6 +414,7 @@ def _segment_stages(origin, *, region, cell_size, control_points, degree, distan
                     below_threshold, range_coefficient, method, smoothing, terrain_prior,
                     range_noise, misfit_threshold, along_normal, foot_height, max_slope_deg,
                     cell_plane, refine, knots, foot_lines, line_of_sight, low_returns,
+                    grow_cells,
                     ground_returns):
     """The GridQuantize, RationalBSplineTerrain and Segmenter stages of
     :func:`segment_terrain`'s options (cached; option errors raise InputError), the sensor at
@@ -409,7 +426,8 @@ def _segment_stages(origin, *, region, cell_size, control_points, degree, distan
                        line_of_sight=line_of_sight, ground_returns=ground_returns)
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
-                                        max_slope_deg, cell_plane, refine, knots, low_returns)
+                                        max_slope_deg, cell_plane, refine, knots, low_returns,
+                                        ground_returns, grow_cells)
     return quantize, terrain, segmenter
 
 

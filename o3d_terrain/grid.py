@@ -38,6 +38,16 @@ LOW_MIN_POINTS = 4
 #: 1.0 %; the fit itself copes with up to about 0.5 % of the points low (about 4 % of the
 #: cells), and from 1 % fails (docs/algorithm.md, "Returns from below the ground")
 LOW_MIN_SHARE = 0.02
+#: a top-down scan's fit wants cells that hold about this many points where most of its points
+#: lie, so that a cell under vegetation also holds a return from the ground (grown_cell;
+#: docs/algorithm.md, "Cells for a sparse top-down scan")
+CELL_POINTS = 3.0
+#: side (m) of the blocks whose point counts give the density most points lie in
+DENSITY_BLOCK = 5.0
+#: the largest cell (m) a sparse top-down scan's fit grows to
+MAX_GROWN_CELL = 3.0
+#: grown cells are a multiple of this side (m)
+GROWN_CELL_STEP = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -271,13 +281,51 @@ def isolated_low_points(grid: HeightGrid, positions: np.ndarray, *, gap: float =
                               int(min_points))
 
 
-def requantize(grid: HeightGrid, positions: np.ndarray) -> HeightGrid:
+def requantize(grid: HeightGrid, positions: np.ndarray, *, cell_size: float | None = None,
+               layer: float | None = None) -> HeightGrid:
     """``grid`` made again from ``positions`` (e.g. the points it was made from without some):
-    the same cells, options, ground-layer thickness and cells' planes."""
-    return quantize_points(positions, cell_size=grid.cell_size, region=grid.region,
-                           min_points=grid.min_points, fill_empty=grid.fill_empty,
-                           layer=grid.layer, plane=grid.plane_sample is not None,
+    the same cells, options, ground-layer thickness and cells' planes; with ``cell_size``
+    cells of that side over the grid's region instead (``layer``: their ground-layer
+    thickness, None = the grid's)."""
+    return quantize_points(positions, cell_size=grid.cell_size if cell_size is None else cell_size,
+                           region=grid.region, min_points=grid.min_points,
+                           fill_empty=grid.fill_empty,
+                           layer=grid.layer if layer is None else layer,
+                           plane=grid.plane_sample is not None,
                            tilt_spread=grid.tilt_spread or 0.0)
+
+
+def typical_density(grid: HeightGrid, block: float = DENSITY_BLOCK) -> float:
+    """Points per square metre where most of the grid's points lie: the median over the
+    points of the density of the block of about ``block`` m (whole cells) each lies in. A
+    tile's gaps (water, shadows) and its sparse margins do not lower it, and a tile dense in
+    one part and sparse elsewhere gets the density most of its points see."""
+    step = max(1, int(round(block / grid.cell_size)))
+    nx, ny = grid.count.shape
+    padded = np.zeros((-(-nx // step) * step, -(-ny // step) * step), np.int64)
+    padded[:nx, :ny] = grid.count
+    counts = padded.reshape(padded.shape[0] // step, step, -1, step).sum(axis=(1, 3)).ravel()
+    counts = np.sort(counts[counts > 0])
+    if counts.size == 0:
+        return 0.0
+    total = np.cumsum(counts)
+    median = counts[int(np.searchsorted(total, 0.5 * total[-1]))]
+    return float(median) / (step * grid.cell_size) ** 2
+
+
+def grown_cell(grid: HeightGrid, *, points: float = CELL_POINTS,
+               largest: float = MAX_GROWN_CELL) -> float:
+    """The cell side (m) at which a cell holds about ``points`` points where most of the
+    grid's points lie (:func:`typical_density`), in steps of :data:`GROWN_CELL_STEP`, at most
+    ``largest``; the grid's own cell when that is under twice its side (its cells hold 3/4
+    of ``points`` or more)."""
+    density = typical_density(grid)
+    if density <= 0:
+        return grid.cell_size
+    side = math.sqrt(points / density)
+    if side < 2.0 * grid.cell_size:
+        return grid.cell_size
+    return min(math.ceil(side / GROWN_CELL_STEP - 1e-9) * GROWN_CELL_STEP, largest)
 
 
 def without_low_returns(grid: HeightGrid, positions: np.ndarray, *,

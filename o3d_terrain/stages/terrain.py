@@ -16,7 +16,8 @@ from ..frame import (
     SLOPES_DEG,
     Frame,
 )
-from ..grid import HeightGrid, with_cell_planes, without_low_returns
+from ..grid import HeightGrid, grown_cell, requantize, with_cell_planes, without_low_returns
+from ..ground_layer import default_layer
 from ..level import upside_down_hint
 from ..noise import RangeNoise
 from ..options import NON_NEGATIVE, POSITIVE, Range, option
@@ -55,6 +56,17 @@ from ..terrain import (
     sensor_ground_plane,
 )
 from .base import Stage, stage
+
+
+def earlier_returns_of(frame: Frame) -> np.ndarray | None:
+    """(N,) bool: the frame's points that are not the last return of their pulse
+    (:func:`~o3d_terrain.segment.earlier_returns`); None when its cloud carries no return
+    numbers."""
+    numbers = [next((n for n in names if frame.has_attribute(n)), None)
+               for names in (RETURN_NUMBERS_ALIASES, NUMBER_OF_RETURNS_ALIASES)]
+    if None in numbers:
+        return None
+    return earlier_returns(*(frame.attribute(n) for n in numbers))
 
 
 def _check_control_points(value):
@@ -170,6 +182,22 @@ class RationalBSplineTerrain(Stage):
                                        "refine's labels and the terrain prior (the ground "
                                        "around it gives level when the sensor is tilted, and "
                                        "seeds the terrain: the vehicle stands on it)")
+    grow_cells: bool = option(
+        True,
+        help="robust method, a top-down scan (no points near sensor_origin: an airborne "
+             "tile): where most of its points lie, a cell of the grid should hold about 3 "
+             "points, so that one under vegetation also holds a return from the ground; on a "
+             "scan too sparse for the grid's cells the fit uses cells grown to hold that "
+             "many (at most 3 m; o3d_terrain.grid.grown_cell; docs/algorithm.md, 'Cells for "
+             "a sparse top-down scan'); false = the grid's cells",
+    )
+    ground_returns: str = option(
+        "last", choices=GROUND_RETURNS,
+        help="with a cloud that carries return_numbers and number_of_returns (a LAS/LAZ "
+             "file's): 'last' = fit the terrain to the last return of each pulse only (a "
+             "pulse that went on past a point did not stop at the ground there), as PDAL's "
+             "ground filters default to; 'all' = fit every return",
+    )
     knots: str = option(
         "auto", choices=("auto",) + KNOT_PLACEMENTS,
         help="robust method: 'adaptive' knot spans, narrower where the grid has more "
@@ -186,9 +214,20 @@ class RationalBSplineTerrain(Stage):
         return []
 
     def run(self, frame: Frame) -> Frame:
-        fit = self.fit(frame.product("grid"), frame.positions,
-                       frame.products.get("range_noise"))
+        grid, positions = frame.product("grid"), frame.positions
+        earlier = earlier_returns_of(frame) if self.ground_returns == "last" else None
+        left_out = 0 if earlier is None else int(earlier.sum())
+        if left_out and left_out < len(positions):
+            # the grid again from the last returns (the one made from every return holds
+            # canopy that the pulses went on past)
+            positions = np.ascontiguousarray(positions[~earlier])
+            grid = requantize(grid, positions)
+        fit = self.fit(grid, positions, frame.products.get("range_noise"))
         frame = frame.with_products(surface=fit.surface, terrain_fit=fit)
+        if left_out:
+            frame = frame.with_note(
+                f"{self.type_name}: fitted without {left_out} earlier return(s) of a pulse "
+                f"(ground_returns)")
         if fit.low_returns:
             frame = frame.with_note(
                 f"{self.type_name}: fitted without {fit.low_returns} isolated low return(s), "
@@ -212,6 +251,13 @@ class RationalBSplineTerrain(Stage):
         robust = positions is not None and self.method == "robust"
         # a vehicle's scan (points around sensor_origin) or a top-down one (an airborne tile)
         top_down = robust and not sensor_in_cloud(positions, self.sensor_origin)
+        cell_size = grid.cell_size  # the refit's and the surface's (rasters)
+        if top_down and self.grow_cells:
+            cell = grown_cell(grid)
+            if cell > grid.cell_size:
+                layer = default_layer(cell, noise_floor=self.noise_floor,
+                                      max_slope_deg=self.slope_limit) if grid.layer else 0.0
+                grid = requantize(grid, positions, cell_size=cell, layer=layer)
         low_returns = None
         if robust and not top_down and self.low_returns:
             grid, positions, low_returns = without_low_returns(grid, positions)
@@ -281,7 +327,7 @@ class RationalBSplineTerrain(Stage):
         # over too few cells to make a share; docs/algorithm.md, "A pit's faces and a raised
         # road's top at the grid's axes")
         steep = (share is not None and share >= STEEP_SHARE) or faces
-        surface = dataclasses.replace(fit.surface, cell_size=grid.cell_size)
+        surface = dataclasses.replace(fit.surface, cell_size=cell_size)
         fit = dataclasses.replace(fit, relief_share=share, face_run=run, low_returns=low_returns)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
@@ -291,7 +337,7 @@ class RationalBSplineTerrain(Stage):
         if self.control_points is None:
             most = STEEP_REFINE_MAX_CONTROL_POINTS if steep else REFINE_MAX_CONTROL_POINTS
         refined, _, refits = refine_surface(
-            surface, positions, cell_size=grid.cell_size, smoothing=self.smoothing,
+            surface, positions, cell_size=cell_size, smoothing=self.smoothing,
             noise_floor=self.noise_floor, sensor_origin=self.sensor_origin,
             cell_plane=self.cell_plane, max_control_points=most, vehicle=vehicle,
             top_down=top_down, line_spacing=line_spacing)
@@ -435,11 +481,7 @@ class Segmenter(Stage):
     )
 
     def run(self, frame: Frame) -> Frame:
-        earlier = None
-        numbers = [next((n for n in names if frame.has_attribute(n)), None)
-                   for names in (RETURN_NUMBERS_ALIASES, NUMBER_OF_RETURNS_ALIASES)]
-        if self.ground_returns == "last" and None not in numbers:
-            earlier = earlier_returns(*(frame.attribute(n) for n in numbers))
+        earlier = earlier_returns_of(frame) if self.ground_returns == "last" else None
         labels, heights = self.label(frame.product("surface"), frame.positions,
                                      earlier=earlier)
         frame = frame.with_attributes(**{LABELS: labels.astype(np.uint8)[:, None],

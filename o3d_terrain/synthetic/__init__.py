@@ -8,6 +8,7 @@
 See docs/synthetic.md for the scenes, the sensor and noise models and evaluation.
 """
 
+from .forest import ForestTile, sample_forest_airborne
 from .render import StereoPair, render_stereo_pair, texture, value_noise
 from .scene import (
     OBSTACLE_SHAPES,
