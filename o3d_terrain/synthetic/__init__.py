@@ -42,9 +42,11 @@ from .terrain import GridRelief, Hill, Plane, Ramp, Ridge, Roughness, Valley
 
 __all__ = [
     "OBSTACLE", "OBSTACLE_SHAPES", "OUTLIER", "SCENES", "SENSOR_FROM_OPTICAL", "TERRAIN",
-    "Camera", "GridRelief", "Hill", "Obstacle", "Plane", "Ramp", "Ridge", "Roughness", "Scene", "StereoPair",
+    "Camera", "ForestTile", "GridRelief", "Hill", "Obstacle", "Plane", "Ramp", "Ridge",
+    "Roughness", "Scene", "StereoPair",
     "SyntheticCloud", "TerrainError", "Valley", "cast", "default_obstacles", "make_scene",
-    "render_stereo_pair", "rotation_matrix", "sample_airborne", "sample_lidar", "sample_sequence",
+    "render_stereo_pair", "rotation_matrix", "sample_airborne", "sample_forest_airborne",
+    "sample_lidar", "sample_sequence",
     "sample_solid_state", "sample_stereo",
     "section6_scene", "sensor_pose", "terrain_rmse", "texture", "value_noise",
 ]
