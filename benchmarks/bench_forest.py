@@ -33,6 +33,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import o3d_terrain  # noqa: E402
+from o3d_terrain.evaluation.commands import parse_options  # noqa: E402
 from o3d_terrain.evaluation.datasets import LabelledFrame, data_root  # noqa: E402
 from o3d_terrain.evaluation.peers import PEERS  # noqa: E402
 from o3d_terrain.evaluation.segmentation import resolve_method  # noqa: E402
@@ -40,9 +41,8 @@ from o3d_terrain.evaluation.terrain import read_raster  # noqa: E402
 from o3d_terrain.frame import NUMBER_OF_RETURNS, RETURN_NUMBERS, cloud_from_numpy  # noqa: E402
 from o3d_terrain.synthetic import sample_forest_airborne  # noqa: E402
 
-from bench_dem_sites import HALF, raster_relief, sites  # noqa: E402
+from bench_dem_sites import HALF, OBSTACLE_HEIGHT, raster_relief, score, sites  # noqa: E402
 
-OBSTACLE_HEIGHT = 0.3  # obstacle points above this count in the obstacle recall (m)
 XYZ_ONLY = "o3d_terrain, x y z only"
 
 
@@ -66,14 +66,6 @@ def forest_frames(density: float = 1.0, *, count: int = 4, scale: float = 1.0, s
             returns=(tile.return_numbers, tile.number_of_returns)), tile.terrain_z
 
 
-def score(ground: np.ndarray, truth: np.ndarray, tall: np.ndarray) -> tuple[float, float]:
-    tp = float(np.sum(ground & truth))
-    precision = tp / max(float(ground.sum()), 1.0)
-    recall = tp / max(float(truth.sum()), 1.0)
-    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
-    return 100 * f1, 100 * float(np.mean(~ground[tall])) if tall.any() else float("nan")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sites", type=int, default=4)
@@ -85,10 +77,7 @@ def main() -> None:
                         help="an option of segment_terrain for ours, e.g. grow_cells=false")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    options = {}
-    for item in args.option:
-        key, _, value = item.partition("=")
-        options[key] = {"true": True, "false": False}.get(value.lower(), value)
+    options = parse_options(args.option, "--option")
     methods = ["o3d_terrain", XYZ_ONLY] + ([m for m in ("csf", "smrf") if m in PEERS]
                                           if args.peers else [])
     print("ground F1 % / obstacle recall %; ours also the height RMSE (m) at the ground points")

@@ -43,7 +43,8 @@ LOW_MIN_SHARE = 0.02
 #: docs/algorithm.md, "Cells for a sparse top-down scan")
 CELL_POINTS = 3.0
 #: side (m) of the blocks whose point counts give the density most points lie in
-DENSITY_BLOCK = 5.0
+#: (typical_density; not refine.DENSITY_BLOCK, the area a top-down scan's points cover)
+TYPICAL_DENSITY_BLOCK = 5.0
 #: the largest cell (m) a sparse top-down scan's fit grows to
 MAX_GROWN_CELL = 3.0
 #: grown cells are a multiple of this side (m)
@@ -295,16 +296,24 @@ def requantize(grid: HeightGrid, positions: np.ndarray, *, cell_size: float | No
                            tilt_spread=grid.tilt_spread or 0.0)
 
 
-def typical_density(grid: HeightGrid, block: float = DENSITY_BLOCK) -> float:
+def block_sums(values: np.ndarray, step: int) -> np.ndarray:
+    """Sums of an (nx, ny) array over blocks of ``step`` x ``step`` cells (the last row and
+    column of blocks padded with zeros): (ceil(nx / step), ceil(ny / step)); booleans are
+    counted."""
+    nx, ny = values.shape
+    dtype = np.int64 if values.dtype == bool else values.dtype
+    padded = np.zeros((-(-nx // step) * step, -(-ny // step) * step), dtype)
+    padded[:nx, :ny] = values
+    return padded.reshape(padded.shape[0] // step, step, -1, step).sum(axis=(1, 3))
+
+
+def typical_density(grid: HeightGrid, block: float = TYPICAL_DENSITY_BLOCK) -> float:
     """Points per square metre where most of the grid's points lie: the median over the
     points of the density of the block of about ``block`` m (whole cells) each lies in. A
     tile's gaps (water, shadows) and its sparse margins do not lower it, and a tile dense in
     one part and sparse elsewhere gets the density most of its points see."""
     step = max(1, int(round(block / grid.cell_size)))
-    nx, ny = grid.count.shape
-    padded = np.zeros((-(-nx // step) * step, -(-ny // step) * step), np.int64)
-    padded[:nx, :ny] = grid.count
-    counts = padded.reshape(padded.shape[0] // step, step, -1, step).sum(axis=(1, 3)).ravel()
+    counts = block_sums(grid.count, step).ravel()
     counts = np.sort(counts[counts > 0])
     if counts.size == 0:
         return 0.0

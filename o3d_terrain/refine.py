@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from ._kernels import terrain as _tk
-from .grid import MEASURED, HeightGrid, quantize_points
+from .grid import MEASURED, HeightGrid, block_sums, quantize_points
 from .segment import TerrainLabel, line_spacing_finder, segment_points
 from .spline import GridBasis, TerrainSurface, clamped_knots
 from .terrain import LAYOUT_MAX_ASPECT, default_control_points, knot_densities
@@ -293,10 +293,7 @@ def density_cap(grid: HeightGrid, degree: int) -> int:
     if cells == 0:
         return degree + 1
     step = max(1, int(round(DENSITY_BLOCK / grid.cell_size)))
-    nx, ny = measured.shape
-    padded = np.zeros((-(-nx // step) * step, -(-ny // step) * step), bool)
-    padded[:nx, :ny] = measured
-    blocks = padded.reshape(padded.shape[0] // step, step, -1, step).any(axis=(1, 3))
+    blocks = block_sums(measured, step) > 0
     area = float(blocks.sum()) * (step * grid.cell_size) ** 2
     spacing = math.sqrt(TOP_DOWN_SPAN_CELLS * area / cells)
     x_min, x_max, y_min, y_max = grid.region

@@ -12,6 +12,7 @@ from o3d_terrain.grid import (
     CELL_POINTS,
     GROWN_CELL_STEP,
     MAX_GROWN_CELL,
+    block_sums,
     grown_cell,
     quantize_points,
     requantize,
@@ -37,6 +38,18 @@ def _height_error(surface, tile) -> float:
     q = tile.positions[tile.is_ground]
     err = surface(q[:, 0], q[:, 1]) - tile.terrain_z[tile.is_ground]
     return float(np.sqrt(np.mean(err ** 2)))
+
+
+def test_block_sums_pad_the_last_blocks(rng):
+    values = rng.integers(0, 5, (7, 10))
+    sums = block_sums(values, 3)
+    assert sums.shape == (3, 4)
+    for i in range(3):
+        for j in range(4):
+            assert sums[i, j] == values[3 * i:3 * i + 3, 3 * j:3 * j + 3].sum()
+    np.testing.assert_array_equal(block_sums(values > 2, 3) > 0,
+                                  [[(values[3 * i:3 * i + 3, 3 * j:3 * j + 3] > 2).any()
+                                    for j in range(4)] for i in range(3)])
 
 
 def test_typical_density_is_where_most_points_lie(rng):
