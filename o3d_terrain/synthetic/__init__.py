@@ -8,6 +8,7 @@
 See docs/synthetic.md for the scenes, the sensor and noise models and evaluation.
 """
 
+from .ceiling import sample_under_ceiling
 from .forest import ForestTile, sample_forest_airborne
 from .render import StereoPair, render_stereo_pair, texture, value_noise
 from .scene import (
@@ -52,3 +53,4 @@ __all__ = [
 ]
 
 __all__ += ["sequence_ground", "synthetic_sequence"]  # from .sequence (tracking sequences)
+__all__ += ["sample_under_ceiling"]  # from .ceiling (scans under a roof)
