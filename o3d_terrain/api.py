@@ -117,7 +117,8 @@ def _array_positions(cloud: Any) -> np.ndarray | None:
 
 def _terrain_stages(region, cell_size, control_points, degree, method, smoothing,
                     terrain_prior, range_noise, sensor_origin, max_slope_deg, cell_plane,
-                    refine, knots, low_returns=True, ground_returns="last", grow_cells=True):
+                    refine, knots, low_returns=True, ground_returns="last", grow_cells=True,
+                    free_space=True):
     """The GridQuantize and RationalBSplineTerrain stages of the api's options (cached)."""
     region = _check_region(region)
     quantize = _build(GridQuantize, cell_size=cell_size, region=region)
@@ -133,7 +134,7 @@ def _terrain_stages(region, cell_size, control_points, degree, method, smoothing
                      terrain_prior=terrain_prior, max_slope_deg=max_slope_deg,
                      cell_plane=cell_plane, refine=refine, knots=knots,
                      low_returns=low_returns, ground_returns=ground_returns,
-                     grow_cells=grow_cells, **noise)
+                     grow_cells=grow_cells, free_space=free_space, **noise)
     return quantize, terrain
 
 
@@ -246,7 +247,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
                 max_slope_deg: float | None = None,
                 cell_plane: bool = True, refine: bool = True,
                 knots: str = "auto", low_returns: bool = True, grow_cells: bool = True,
-                ground_returns: str = "last") -> TerrainSurface:
+                ground_returns: str = "last", free_space: bool = True) -> TerrainSurface:
     """Fit a rational B-spline terrain surface to a point cloud.
 
     region: (x_min, x_max, y_min, y_max) in the cloud's coordinates; None = the cloud's extent.
@@ -298,6 +299,13 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     fit without the points well below the thin layer of their cell
     (:func:`o3d_terrain.grid.without_low_returns`; docs/algorithm.md, "Returns from below the
     ground"); False = fit every point.
+    free_space: (default; robust method, a vehicle's scan) fit without the cells whose lowest
+    point lies well above where rays of the scan passed on their way to farther returns (the
+    underside of a ceiling, a roof or a canopy that rays went under: no ground can be there;
+    :func:`o3d_terrain.grid.without_overhead`; docs/algorithm.md, "Free space under the
+    rays"); False = fit every cell. It acts only where ``sensor_origin`` stands at least
+    0.3 m over the ground 2-10 m around it (the rays need the sensor's position: not the
+    ground under a stereo rig in a vehicle frame, nor a sensor found from a map-frame scan).
     grow_cells: (default; robust method, a top-down scan: no points near ``sensor_origin``, an
     airborne tile) where a cell of ``cell_size`` holds under 3/4 of a point where most of
     the scan's points lie, the robust fit uses cells grown to hold about 3 (at most 3 m), so
@@ -317,7 +325,7 @@ def fit_terrain(cloud: Any, *, region: Sequence[float] | None = None, cell_size:
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots, low_returns,
-                                        ground_returns, grow_cells)
+                                        ground_returns, grow_cells, free_space)
     if frame is None:  # numpy input: the stages' functions without a frame
         return _array_fit(positions, quantize, terrain)
     return _terrain_frame(frame, quantize, terrain).product("surface")
@@ -338,7 +346,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
                     foot_lines: float = FOOT_LINES,
                     line_of_sight: bool = True,
                     low_returns: bool = True, grow_cells: bool = True,
-                    ground_returns: str = "last") -> tuple[TerrainSurface, np.ndarray]:
+                    ground_returns: str = "last",
+                    free_space: bool = True) -> tuple[TerrainSurface, np.ndarray]:
     """Fit the terrain and return ``(surface, inliers)``: int64 indices of the terrain points.
 
     A point is terrain when -below_threshold <= z - S(x, y) <= distance_threshold +
@@ -380,7 +389,8 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
     options as in :func:`fit_terrain` (``range_noise`` given as a coefficient uses
     ``sensor_origin``; ``refine`` refits the surface to the points its automatic labels call
     terrain before these labels are made; ``low_returns`` leaves isolated returns from below
-    the ground out of the fit, not out of the labels).
+    the ground out of the fit, not out of the labels, and ``free_space`` the cells over where
+    rays went on, a ceiling's or a canopy's).
 
     Runs the stages GridQuantize, RationalBSplineTerrain and Segmenter with these options.
     """
@@ -393,8 +403,7 @@ def segment_terrain(cloud: Any, *, region: Sequence[float] | None = None,
         misfit_threshold=misfit_threshold, along_normal=along_normal, foot_height=foot_height,
         max_slope_deg=max_slope_deg, cell_plane=cell_plane, refine=refine, knots=knots,
         foot_lines=foot_lines, line_of_sight=line_of_sight, low_returns=low_returns,
-        grow_cells=grow_cells,
-        ground_returns=ground_returns)
+        grow_cells=grow_cells, ground_returns=ground_returns, free_space=free_space)
     if frame is None:  # numpy input: the stages' functions without a frame
         # the points' scan-line spacing, found once for the refit's labels and the final ones
         # (when both see the sensor at the same place)
@@ -414,8 +423,7 @@ def _segment_stages(origin, *, region, cell_size, control_points, degree, distan
                     below_threshold, range_coefficient, method, smoothing, terrain_prior,
                     range_noise, misfit_threshold, along_normal, foot_height, max_slope_deg,
                     cell_plane, refine, knots, foot_lines, line_of_sight, low_returns,
-                    grow_cells,
-                    ground_returns):
+                    grow_cells, ground_returns, free_space):
     """The GridQuantize, RationalBSplineTerrain and Segmenter stages of
     :func:`segment_terrain`'s options (cached; option errors raise InputError), the sensor at
     ``origin``."""
@@ -427,7 +435,7 @@ def _segment_stages(origin, *, region, cell_size, control_points, degree, distan
     quantize, terrain = _terrain_stages(region, cell_size, control_points, degree, method,
                                         smoothing, terrain_prior, range_noise, origin,
                                         max_slope_deg, cell_plane, refine, knots, low_returns,
-                                        ground_returns, grow_cells)
+                                        ground_returns, grow_cells, free_space)
     return quantize, terrain, segmenter
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ._files import open_npz, output_path
+from ._kernels import free_space as _free_space
 from ._kernels import grid as _grid
 from .errors import InputError
 
@@ -354,6 +355,116 @@ def without_low_returns(grid: HeightGrid, positions: np.ndarray, *,
         return grid, positions, 0
     kept = np.ascontiguousarray(np.asarray(positions, dtype=np.float64)[~low])
     return requantize(grid, kept), kept, int(low.sum())
+
+
+#: :func:`without_overhead`: azimuth sectors of the rays around the sensor ...
+OVERHEAD_SECTORS = 720
+#: ... range bins (m) ...
+OVERHEAD_BIN = 0.5
+#: ... the bound from the rank-th lowest ray over a place ...
+OVERHEAD_RANK = 3
+#: ... and how far (m) above it a cell's lowest point lies, plus a 45 degree rise across its
+#: sector's width at its range, to be overhead ...
+OVERHEAD_CLEARANCE = 0.5
+#: ... with range bins out to this distance (m; farther rays share the last bin) ...
+OVERHEAD_REACH = 400.0
+#: ... from a sensor at least this high (m) over the median lowest point of the cells ...
+OVERHEAD_SENSOR_HEIGHT = 0.3
+#: ... this far from it (m, x/y)
+OVERHEAD_GROUND_RING = (2.0, 10.0)
+
+
+def overhead_cells(grid: HeightGrid, sensor_origin) -> np.ndarray:
+    """(nx, ny) bool: the cells of ``grid`` whose lowest point lies above where rays of the
+    scan from ``sensor_origin`` pass on their way to farther returns
+    (:func:`o3d_terrain._kernels.free_space.overhead_cells`: by more than
+    :data:`OVERHEAD_CLEARANCE` plus a 45 degree rise across the azimuth sector's width at the
+    cell's range): the underside of a ceiling, a roof or a canopy that the sensor sees rays
+    pass under, with no point lower in the cell. No ground can be there: the ground under a
+    ray that went on lies below it."""
+    ox, oy, oz = (float(v) for v in sensor_origin)
+    x_min, x_max, y_min, y_max = grid.region
+    farthest = math.hypot(max(abs(x_min - ox), abs(x_max - ox)),
+                          max(abs(y_min - oy), abs(y_max - oy)))
+    bins = int(min(farthest, OVERHEAD_REACH) / OVERHEAD_BIN) + 1
+    return _free_space.overhead_cells(
+        np.ascontiguousarray(grid.lowest, dtype=np.float64), grid.x_min, grid.y_min,
+        grid.cell_size, ox, oy, oz, OVERHEAD_SECTORS, OVERHEAD_BIN, bins, OVERHEAD_RANK,
+        OVERHEAD_CLEARANCE, 8.0 / OVERHEAD_SECTORS)
+
+
+def sensor_above_ground(grid: HeightGrid, sensor_origin) -> bool:
+    """Whether ``sensor_origin`` lies at least :data:`OVERHEAD_SENSOR_HEIGHT` above the median
+    lowest point of the grid's cells whose centres lie :data:`OVERHEAD_GROUND_RING` m from it
+    (x/y): a place rays of the scan were cast from, not the ground beneath the sensor (a
+    stereo rig's cloud in a vehicle frame has the origin there, a sensor found from a scan in
+    a map frame is put there) nor a place without ground around it."""
+    if grid.lowest is None:
+        return False
+    ox, oy, oz = (float(v) for v in sensor_origin)
+    near, far = OVERHEAD_GROUND_RING
+    c = grid.cell_size
+    ix = slice(max(int((ox - far - grid.x_min) / c), 0),
+               max(int((ox + far - grid.x_min) / c) + 1, 0))
+    iy = slice(max(int((oy - far - grid.y_min) / c), 0),
+               max(int((oy + far - grid.y_min) / c) + 1, 0))
+    lowest = grid.lowest[ix, iy]
+    dx = grid.x_centers[ix][:, None] - ox
+    dy = grid.y_centers[iy][None, :] - oy
+    reach = np.hypot(dx, dy)
+    ring = np.isfinite(lowest) & (reach >= near) & (reach <= far)
+    return bool(ring.any()) and float(np.median(lowest[ring])) <= oz - OVERHEAD_SENSOR_HEIGHT
+
+
+def without_overhead(grid: HeightGrid, positions: np.ndarray, sensor_origin
+                     ) -> tuple[HeightGrid, np.ndarray, int]:
+    """``(grid, positions, dropped)``: the grid without its :func:`overhead_cells` seen from
+    ``sensor_origin`` (:func:`without_cells`: as made again from the points without theirs),
+    the points without theirs and how many were left out; the inputs and 0 when there are
+    none. A cell with a point below the bound keeps every point: ground under a canopy and
+    the canopy over it are what the ground-layer samples and the terrain prior's canopy rule
+    read. Only where the sensor stands over the ground around it
+    (:func:`sensor_above_ground`); the grid's lowest points are needed (the inputs and 0
+    otherwise)."""
+    if grid.lowest is None or not sensor_above_ground(grid, sensor_origin):
+        return grid, positions, 0
+    over = overhead_cells(grid, sensor_origin)
+    if not over.any():
+        return grid, positions, 0
+    p = np.asarray(positions, dtype=np.float64)
+    kept = _grid.points_outside_cells(p, grid.x_min, grid.y_min, grid.cell_size, grid.nx,
+                                      grid.ny, over.reshape(-1))
+    return without_cells(grid, over), kept, len(p) - len(kept)
+
+
+def without_cells(grid: HeightGrid, cells: np.ndarray) -> HeightGrid:
+    """``grid`` with the cells ``cells`` ((nx, ny) bool) emptied of their points: the grid
+    :func:`requantize` makes from the points without theirs, array for array, with no pass
+    over the points (a cell's sums hold its own points only; the cells that are not MEASURED
+    are filled again from their MEASURED neighbours when the grid fills empty cells)."""
+    where = np.flatnonzero(cells)
+
+    def emptied(values, value):
+        if values is None:
+            return None
+        values = values.copy()
+        values.reshape(-1)[where] = value
+        return values
+
+    state = emptied(grid.state, INVALID)
+    z = emptied(grid.z, 0.0)
+    if grid.fill_empty:
+        _grid.refill_around(z.reshape(-1), state.reshape(-1), grid.nx, grid.ny, where)
+    plane_sample = None
+    if grid.plane_sample is not None:  # eq. 1's sample wherever a cell is not MEASURED
+        plane_sample = np.where(state == MEASURED, grid.plane_sample, z)
+    return replace(grid, z=z, count=emptied(grid.count, 0), state=state,
+                   lowest=emptied(grid.lowest, math.inf),
+                   highest=emptied(grid.highest, -math.inf), mean=emptied(grid.mean, 0.0),
+                   layer_count=emptied(grid.layer_count, 0),
+                   layer_sum=emptied(grid.layer_sum, 0.0),
+                   layer_above=emptied(grid.layer_above, math.inf),
+                   level=emptied(grid.level, 0.0), plane_sample=plane_sample)
 
 
 def _stray_points(x: np.ndarray, y: np.ndarray, cell_size: float) -> str | None:

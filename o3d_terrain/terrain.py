@@ -169,6 +169,10 @@ class TerrainFit:
     # out (o3d_terrain.grid.without_low_returns; 0 when too few cells had one); None when it
     # did not look (a top-down scan, low_returns off, no points)
     low_returns: int | None = None
+    # RationalBSplineTerrain on a vehicle's scan: how many points the fit left out in the cells
+    # over where rays went on (o3d_terrain.grid.without_overhead); None when it did not look (a
+    # top-down scan, free_space off, no points)
+    overhead: int | None = None
 
 
 def default_control_points(grid: HeightGrid, degree: int = 3,

@@ -122,6 +122,55 @@ def cell_indices(x, y, x_min, y_min, cell_size, nx, ny):
     return out
 
 
+@numba.njit(cache=True)
+def points_outside_cells(positions, x_min, y_min, cell_size, nx, ny, flagged):
+    """The rows of the (N, 3) array ``positions`` that do not lie in a cell (:func:`_cell`)
+    flagged in the flat bool array ``flagged``, in their order (points outside the grid and
+    non-finite ones stay): the first rows of an (N, 3) array."""
+    n = positions.shape[0]
+    out = np.empty((n, 3))
+    j = 0
+    for k in range(n):
+        c = _cell(positions[k, 0], positions[k, 1], x_min, y_min, cell_size, nx, ny)
+        if c < 0 or not flagged[c]:
+            out[j, 0] = positions[k, 0]
+            out[j, 1] = positions[k, 1]
+            out[j, 2] = positions[k, 2]
+            j += 1
+    return out[:j]
+
+
+@numba.njit(cache=True)
+def refill_around(height, state, nx, ny, emptied):
+    """In place on flat (nx * ny) arrays, after the cells ``emptied`` (flat indices) lost their
+    points (their state no longer MEASURED): every cell that is not MEASURED within one cell of
+    them takes again the mean height of its 8-neighbour MEASURED cells and is FILLED, or
+    INVALID with height 0 without one (:func:`_fill_empty`'s values: its sums run over a
+    cell's neighbours in increasing flat index, as this loop does)."""
+    for e in emptied:
+        ex = e // ny
+        ey = e - ex * ny
+        for ix in range(max(ex - 1, 0), min(ex + 2, nx)):
+            for iy in range(max(ey - 1, 0), min(ey + 2, ny)):
+                c = ix * ny + iy
+                if state[c] == MEASURED:
+                    continue
+                total = 0.0
+                around = 0
+                for jx in range(max(ix - 1, 0), min(ix + 2, nx)):
+                    for jy in range(max(iy - 1, 0), min(iy + 2, ny)):
+                        j = jx * ny + jy
+                        if state[j] == MEASURED:
+                            total += height[j]
+                            around += 1
+                if around > 0:
+                    height[c] = total / around
+                    state[c] = FILLED
+                else:
+                    height[c] = 0.0
+                    state[c] = INVALID
+
+
 #: fewest points whose plane eq. 1 uses: a plane takes up to three degrees of freedom from
 #: the points, so four leave at least one for the spread about it (fewer: eq. 1)
 PLANE_MIN_POINTS = 4

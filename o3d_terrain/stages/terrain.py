@@ -16,7 +16,8 @@ from ..frame import (
     SLOPES_DEG,
     Frame,
 )
-from ..grid import HeightGrid, grown_cell, requantize, with_cell_planes, without_low_returns
+from ..grid import (HeightGrid, grown_cell, requantize, with_cell_planes, without_low_returns,
+                    without_overhead)
 from ..ground_layer import default_layer
 from ..level import upside_down_hint
 from ..noise import RangeNoise
@@ -171,6 +172,17 @@ class RationalBSplineTerrain(Stage):
              "below the thin layer of their cell (its median); they are still labelled "
              "(docs/algorithm.md, 'Returns from below the ground'); false = fit every point",
     )
+    free_space: bool = option(
+        True,
+        help="robust method, a vehicle's scan (points around sensor_origin): fit without the "
+             "cells whose lowest point lies more than 0.5 m (plus a 45 degree rise across "
+             "its azimuth sector, about half a degree) above where rays of the scan passed "
+             "on their way to farther returns: the underside of a ceiling, a roof or a canopy "
+             "that rays went under, where no ground can be; their points are still labelled "
+             "(o3d_terrain.grid.overhead_cells; docs/algorithm.md, 'Free space under the "
+             "rays'); only where sensor_origin stands 0.3 m or more over the ground 2-10 m "
+             "around it (the rays need the sensor's position); false = fit every cell",
+    )
     range_noise: float = option(
         0.0, unit="1/m", rule=NON_NEGATIVE,
         help="range-dependent sensor noise: noise along the viewing ray = range_noise * "
@@ -232,6 +244,10 @@ class RationalBSplineTerrain(Stage):
             frame = frame.with_note(
                 f"{self.type_name}: fitted without {fit.low_returns} isolated low return(s), "
                 f"from below the ground (low_returns)")
+        if fit.overhead:
+            frame = frame.with_note(
+                f"{self.type_name}: fitted without {fit.overhead} point(s) over where rays went "
+                f"on to farther returns, in cells of nothing lower (free_space)")
         return frame
 
     def fit(self, grid: HeightGrid, positions: np.ndarray | None = None,
@@ -263,6 +279,11 @@ class RationalBSplineTerrain(Stage):
             grid, positions, low_returns = without_low_returns(grid, positions)
             if low_returns:  # the caller's scan-line spacing is of the points before
                 line_spacing = None
+        overhead = None
+        if robust and not top_down and self.free_space:
+            # the caller's scan-line spacing stays: the points left out lie over rays that
+            # went on past them, off the faces it is measured on
+            grid, positions, overhead = without_overhead(grid, positions, self.sensor_origin)
         if self.cell_plane:  # the grid as it is when it carries planes of this noise floor
             grid = with_cell_planes(grid, positions, tilt_spread=self.noise_floor)
         control_points = self.control_points
@@ -328,7 +349,8 @@ class RationalBSplineTerrain(Stage):
         # road's top at the grid's axes")
         steep = (share is not None and share >= STEEP_SHARE) or faces
         surface = dataclasses.replace(fit.surface, cell_size=cell_size)
-        fit = dataclasses.replace(fit, relief_share=share, face_run=run, low_returns=low_returns)
+        fit = dataclasses.replace(fit, relief_share=share, face_run=run, low_returns=low_returns,
+                                  overhead=overhead)
         if not refit:
             return dataclasses.replace(fit, surface=surface)
         # an automatic layout may grow for the refit's solve (o3d_terrain.refine), more on
