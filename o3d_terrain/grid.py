@@ -393,6 +393,20 @@ def overhead_cells(grid: HeightGrid, sensor_origin) -> np.ndarray:
         OVERHEAD_CLEARANCE, 8.0 / OVERHEAD_SECTORS)
 
 
+def cells_around(grid: HeightGrid, sensor_origin, radius: float):
+    """(block, dx, dy): the slice of the grid's cells within ``radius`` of the sensor along x
+    and y, and their centres' offsets from it as a column and a row; None when no cell lies
+    there."""
+    dx = grid.x_centers - float(sensor_origin[0])
+    dy = grid.y_centers - float(sensor_origin[1])
+    i = np.flatnonzero(np.abs(dx) <= radius)
+    j = np.flatnonzero(np.abs(dy) <= radius)
+    if i.size == 0 or j.size == 0:
+        return None
+    block = np.s_[i[0]:i[-1] + 1, j[0]:j[-1] + 1]
+    return block, dx[block[0]][:, None], dy[block[1]][None, :]
+
+
 def sensor_above_ground(grid: HeightGrid, sensor_origin) -> bool:
     """Whether ``sensor_origin`` lies at least :data:`OVERHEAD_SENSOR_HEIGHT` above the median
     lowest point of the grid's cells whose centres lie :data:`OVERHEAD_GROUND_RING` m from it
@@ -401,19 +415,16 @@ def sensor_above_ground(grid: HeightGrid, sensor_origin) -> bool:
     a map frame is put there) nor a place without ground around it."""
     if grid.lowest is None:
         return False
-    ox, oy, oz = (float(v) for v in sensor_origin)
     near, far = OVERHEAD_GROUND_RING
-    c = grid.cell_size
-    ix = slice(max(int((ox - far - grid.x_min) / c), 0),
-               max(int((ox + far - grid.x_min) / c) + 1, 0))
-    iy = slice(max(int((oy - far - grid.y_min) / c), 0),
-               max(int((oy + far - grid.y_min) / c) + 1, 0))
-    lowest = grid.lowest[ix, iy]
-    dx = grid.x_centers[ix][:, None] - ox
-    dy = grid.y_centers[iy][None, :] - oy
+    around = cells_around(grid, sensor_origin, far)
+    if around is None:
+        return False
+    block, dx, dy = around
+    lowest = grid.lowest[block]
     reach = np.hypot(dx, dy)
     ring = np.isfinite(lowest) & (reach >= near) & (reach <= far)
-    return bool(ring.any()) and float(np.median(lowest[ring])) <= oz - OVERHEAD_SENSOR_HEIGHT
+    return bool(ring.any()) and \
+        float(np.median(lowest[ring])) <= float(sensor_origin[2]) - OVERHEAD_SENSOR_HEIGHT
 
 
 def without_overhead(grid: HeightGrid, positions: np.ndarray, sensor_origin
@@ -426,7 +437,7 @@ def without_overhead(grid: HeightGrid, positions: np.ndarray, sensor_origin
     read. Only where the sensor stands over the ground around it
     (:func:`sensor_above_ground`); the grid's lowest points are needed (the inputs and 0
     otherwise)."""
-    if grid.lowest is None or not sensor_above_ground(grid, sensor_origin):
+    if not sensor_above_ground(grid, sensor_origin):
         return grid, positions, 0
     over = overhead_cells(grid, sensor_origin)
     if not over.any():

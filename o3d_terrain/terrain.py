@@ -27,7 +27,7 @@ import numpy as np
 from .errors import InputError
 from ._kernels import ground as _ground
 from ._kernels import terrain as _tk
-from .grid import FILLED, MEASURED, HeightGrid
+from .grid import FILLED, MEASURED, HeightGrid, cells_around
 from .ground_layer import default_layer, ground_layer_samples, overhung_ground_cells
 from .noise import GridNoise, RangeNoise
 from .spline import GridBasis, TerrainSurface, clamped_knots
@@ -507,27 +507,13 @@ def _sensor_ground(grid: HeightGrid, sensor_origin, radius: float = PRIOR_LEVEL_
     return float(gx), float(gy), float(height)
 
 
-def _block_around(grid: HeightGrid, sensor_origin, radius: float):
-    """(block, dx, dy): the slice of the grid's cells within ``radius`` of the sensor along x
-    and y, and their centres' offsets from it as a column and a row; None when no cell lies
-    there."""
-    dx = grid.x_centers - float(sensor_origin[0])
-    dy = grid.y_centers - float(sensor_origin[1])
-    i = np.flatnonzero(np.abs(dx) <= radius)
-    j = np.flatnonzero(np.abs(dy) <= radius)
-    if i.size == 0 or j.size == 0:
-        return None
-    block = np.s_[i[0]:i[-1] + 1, j[0]:j[-1] + 1]
-    return block, dx[block[0]][:, None], dy[block[1]][None, :]
-
-
 def _ground_height(grid, low, measured, sensor_origin, gx, gy, radius, count):
     """The plane's height at the sensor: the median of the lowest points (less the plane's
     tilt) of the ``count`` measured cells nearest the sensor whose points rise less than a
     PRIOR_LEVEL_MAX_SLOPE_DEG plane across a cell: the ground the sensor stands on, where
     the least-squares plane through two levels (a raised road above the ground beside it)
     would sit between them."""
-    around = _block_around(grid, sensor_origin, radius)
+    around = cells_around(grid, sensor_origin, radius)
     if around is None:
         return math.nan
     block, bx, by = around
@@ -560,9 +546,9 @@ def _level_plane(grid: HeightGrid, sensor_origin, ground=None) -> np.ndarray | N
 def _near_sensor(grid: HeightGrid, sensor_origin,
                  radius: float = PRIOR_LEVEL_RADIUS) -> np.ndarray:
     """The cells whose centre lies within ``radius`` (x/y) of the sensor (the test of
-    :func:`_sensor_seeds`, on the block of :func:`_block_around`)."""
+    :func:`_sensor_seeds`, on the block of :func:`o3d_terrain.grid.cells_around`)."""
     near = np.zeros(grid.shape, bool)
-    around = _block_around(grid, sensor_origin, radius)
+    around = cells_around(grid, sensor_origin, radius)
     if around is not None:
         block, dx, dy = around
         near[block] = dx * dx + dy * dy <= radius * radius
@@ -583,7 +569,7 @@ def _sensor_seeds(grid: HeightGrid, sensor_origin, ground, tolerance: float,
     gx, gy, height = ground
     low = grid.lowest if grid.lowest is not None else grid.z
     seeds = np.zeros(grid.shape, bool)
-    around = _block_around(grid, sensor_origin, radius)
+    around = cells_around(grid, sensor_origin, radius)
     if around is None:
         return seeds
     block, dx, dy = around

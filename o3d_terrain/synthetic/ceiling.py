@@ -39,8 +39,6 @@ def sample_under_ceiling(height: float, *, half_width: float | None = None,
     e, a = np.meshgrid(elevation, azimuth)
     d = np.c_[(np.cos(e) * np.cos(a)).ravel(), (np.cos(e) * np.sin(a)).ravel(),
               np.sin(e).ravel()]
-    t = np.full(len(d), np.inf)
-    floor = np.zeros(len(d), bool)
     climb = d[:, 2] - grade * d[:, 0]  # the ray's rise over the floor's, per metre of ray
     with np.errstate(divide="ignore", invalid="ignore"):
         to_floor = np.where(climb < 0, -sensor_height / climb, np.inf)
