@@ -99,6 +99,9 @@ OVER_DEPTH = 0.5
 #: ... nor against the plane of the points around it, where they (it included) number at least
 #: this many: the points of a face steeper than the surface lie along their own plane
 OVER_PLANE_POINTS = 6
+#: ... from at most about this many terrain points per ``radius``-wide cell (a regular share of
+#: a denser cell's: :func:`o3d_terrain._kernels.local_plane.depth_below_slope`)
+OVER_CELL_POINTS = 128
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -363,7 +366,8 @@ def face_points(positions: np.ndarray, heights: np.ndarray, candidates: np.ndarr
 
 def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndarray,
                  gradient, *, radius: float = OVER_RADIUS, depth: float = OVER_DEPTH,
-                 plane_points: int = OVER_PLANE_POINTS) -> np.ndarray:
+                 plane_points: int = OVER_PLANE_POINTS,
+                 cell_points: int = OVER_CELL_POINTS) -> np.ndarray:
     """The ``candidates`` (indices) that stand over terrain: some ``terrain`` (N,) bool point
     within ``radius`` (x/y) lies more than ``depth`` below the plane through the candidate
     with the surface's slope there (``gradient(x, y) -> (gx, gy)``) and, where the candidate
@@ -383,7 +387,7 @@ def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndar
     least = _lp.depth_below_slope(p, np.ascontiguousarray(terrain, dtype=np.bool_), idx,
                                   np.ascontiguousarray(gx, dtype=np.float64),
                                   np.ascontiguousarray(gy, dtype=np.float64), float(radius),
-                                  int(plane_points))
+                                  int(plane_points), int(cell_points))
     return idx[least < -depth]
 
 

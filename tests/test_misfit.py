@@ -451,8 +451,8 @@ def test_depth_below_slope_equals_the_point_by_point_reference(rng):
     terrain = rng.uniform(size=3000) < 0.6
     idx = rng.choice(3000, 300, replace=False)
     gx, gy = rng.normal(0, 0.5, 300), rng.normal(0, 0.5, 300)
-    alone = depth_below_slope(p, terrain, idx, gx, gy, 0.9, 10**9)
-    both = depth_below_slope(p, terrain, idx, gx, gy, 0.9, 6)
+    alone = depth_below_slope(p, terrain, idx, gx, gy, 0.9, 10**9, 10**9)
+    both = depth_below_slope(p, terrain, idx, gx, gy, 0.9, 6, 10**9)
     planes = 0
     for k, i in enumerate(idx):
         d = p[:, :2] - p[i, :2]
@@ -472,6 +472,36 @@ def test_depth_below_slope_equals_the_point_by_point_reference(rng):
         np.testing.assert_allclose(both[k], max(e.min(), own.min()), atol=1e-9)
         planes += 1
     assert planes > 100
+
+
+def test_depth_below_slope_reads_a_regular_share_of_a_dense_cell(rng):
+    """A cell of the neighbour grid (cells ``radius`` wide from the candidates' box grown by
+    ``radius``) holding more than ``cell_points`` terrain points gives every k-th of them in
+    index order, k the smallest stride leaving at most ``cell_points``; other cells all."""
+    from o3d_terrain._kernels.local_plane import depth_below_slope
+    n, radius, cap = 4000, 0.9, 20
+    p = np.column_stack([rng.uniform(0, 6, n), rng.uniform(0, 6, n), rng.normal(0, 0.5, n)])
+    p[:1000, :2] = rng.uniform(2.0, 2.8, (1000, 2))  # one dense patch: strided cells
+    terrain = rng.uniform(size=n) < 0.7
+    idx = rng.choice(n, 200, replace=False)
+    gx, gy = rng.normal(0, 0.5, 200), rng.normal(0, 0.5, 200)
+    got = depth_below_slope(p, terrain, idx, gx, gy, radius, 10**9, cap)
+    x0, y0 = p[idx, 0].min() - radius, p[idx, 1].min() - radius
+    cell = np.floor((p[:, 0] - x0) / radius) * 10**6 + np.floor((p[:, 1] - y0) / radius)
+    kept = np.zeros(n, bool)
+    strided = 0
+    for c in np.unique(cell[terrain]):
+        members = np.flatnonzero(terrain & (cell == c))
+        stride = -(-members.size // cap)
+        kept[members[::stride]] = True
+        strided += stride > 1
+    assert strided > 0
+    for k, i in enumerate(idx):
+        d = p[:, :2] - p[i, :2]
+        near = kept & (np.hypot(d[:, 0], d[:, 1]) <= radius)
+        near[i] = False
+        e = p[near, 2] - p[i, 2] - (gx[k] * d[near, 0] + gy[k] * d[near, 1])
+        assert got[k] == (e.min() if e.size else np.inf)
 
 
 def test_points_over_terrain_are_those_with_terrain_beneath_them_beyond_the_slope():

@@ -578,7 +578,7 @@ def column_spread(positions, heights, high, candidates, cell):
 
 
 @numba.njit(cache=True)
-def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane):
+def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane, cell_points):
     """For each candidate point i, how far the lowest ``terrain`` (N,) bool point j != i
     within ``radius`` (x/y) of it lies below the plane through it with the slope (gx_i, gy_i):
     min over j of (z_j - z_i) - (gx_i (x_j - x_i) + gy_i (y_j - y_i)) (negative: below), or
@@ -590,7 +590,10 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
 
     The neighbours are found in cells at least ``radius`` wide over the candidates' bounding
     box grown by ``radius`` (:func:`_candidate_grid`), the terrain points of the candidates'
-    3 x 3 blocks only, gathered once in the order of their cells."""
+    3 x 3 blocks only, gathered once in the order of their cells. A cell holding more than
+    ``cell_points`` terrain points gives every k-th of them in their order (k the smallest
+    stride that leaves at most ``cell_points``): a lidar's face seen from a few metres holds
+    thousands a cell, and its plane and lowest points show in a regular share of them."""
     m = candidates.shape[0]
     out = np.full(m, np.inf)
     if m == 0:
@@ -612,15 +615,25 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane)
             if wanted[c]:
                 cell_of[j] = c
                 start[c + 1] += 1
+    # every stride-th point of a cell over cell_points (stride 1 elsewhere)
+    stride = np.ones(nx * ny, np.int64)
+    for c in range(nx * ny):
+        held = start[c + 1]
+        if held > cell_points:
+            stride[c] = (held + cell_points - 1) // cell_points
+            start[c + 1] = (held + stride[c] - 1) // stride[c]
     for c in range(nx * ny):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
+    seen = np.zeros(nx * ny, np.int64)
     order = np.empty(start[-1], np.int64)
     for j in range(n):
         c = cell_of[j]
         if c >= 0:
-            order[fill[c]] = j
-            fill[c] += 1
+            if seen[c] % stride[c] == 0:
+                order[fill[c]] = j
+                fill[c] += 1
+            seen[c] += 1
     r2 = radius * radius
     cov = np.empty((3, 3))
     normal = np.empty(3)
