@@ -99,9 +99,13 @@ OVER_DEPTH = 0.5
 #: ... nor against the plane of the points around it, where they (it included) number at least
 #: this many: the points of a face steeper than the surface lie along their own plane
 OVER_PLANE_POINTS = 6
-#: ... from at most about this many terrain points per ``radius``-wide cell (a regular share of
-#: a denser cell's: :func:`o3d_terrain._kernels.local_plane.depth_below_slope`)
-OVER_CELL_POINTS = 128
+#: the local planes (:func:`local_plane_terrain`) and the test of points over the terrain
+#: (:func:`over_terrain`) read at most this many points per square metre of their neighbour
+#: cells: a denser cell (a lidar's face seen from a few metres holds thousands) lends every
+#: k-th of its points, a regular share in which its planes and its lowest points show
+#: (docs/algorithm.md, "Points over the terrain on a top-down scan": "A dense cell is read
+#: in a regular share")
+MOST_PLANE_DENSITY = 256.0
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -367,7 +371,7 @@ def face_points(positions: np.ndarray, heights: np.ndarray, candidates: np.ndarr
 def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndarray,
                  gradient, *, radius: float = OVER_RADIUS, depth: float = OVER_DEPTH,
                  plane_points: int = OVER_PLANE_POINTS,
-                 cell_points: int = OVER_CELL_POINTS) -> np.ndarray:
+                 most_density: float = MOST_PLANE_DENSITY) -> np.ndarray:
     """The ``candidates`` (indices) that stand over terrain: some ``terrain`` (N,) bool point
     within ``radius`` (x/y) lies more than ``depth`` below the plane through the candidate
     with the surface's slope there (``gradient(x, y) -> (gx, gy)``) and, where the candidate
@@ -376,7 +380,8 @@ def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndar
     point with terrain that far beneath it, beyond what the slope explains, is vegetation or
     an object over the ground (docs/algorithm.md, "Points over the terrain on a top-down
     scan"), while a ridge the surface undercuts has its flanks along its slope, and a face
-    steeper than the surface along its own plane."""
+    steeper than the surface along its own plane. The terrain points are read at most
+    ``most_density`` per square metre (:data:`MOST_PLANE_DENSITY`)."""
     p = np.asarray(positions, dtype=np.float64)
     idx = np.ascontiguousarray(candidates, dtype=np.int64)
     if idx.size == 0:
@@ -387,14 +392,15 @@ def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndar
     least = _lp.depth_below_slope(p, np.ascontiguousarray(terrain, dtype=np.bool_), idx,
                                   np.ascontiguousarray(gx, dtype=np.float64),
                                   np.ascontiguousarray(gy, dtype=np.float64), float(radius),
-                                  int(plane_points), int(cell_points))
+                                  int(plane_points), float(most_density))
     return idx[least < -depth]
 
 
 def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.ndarray,
                         candidates: np.ndarray, *, radius: float, threshold: float,
                         min_points: int = MISFIT_PLANE_MIN_POINTS,
-                        rounds: int = MISFIT_PLANE_ROUNDS) -> int:
+                        rounds: int = MISFIT_PLANE_ROUNDS,
+                        most_density: float = MOST_PLANE_DENSITY) -> int:
     """In place: ``terrain`` (N,) bool set at the ``candidates`` (indices) whose height above
     the surface lies at most ``threshold`` above the least-squares plane (of the heights)
     through the terrain points within ``radius`` (m) of them, when at least ``min_points``
@@ -407,7 +413,8 @@ def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.
     the surface is known not to follow the terrain (a ridge it undercuts by metres), while the
     terrain points on the ridge's flanks, within the reach of detail the surface misses, do;
     a bush or a tree stands above the plane through the ground around it, a ridge point does
-    not."""
+    not. The planes read at most ``most_density`` points per square metre
+    (:data:`MOST_PLANE_DENSITY`); every candidate is still decided."""
     p = np.asarray(positions, dtype=np.float64)
     idx = np.ascontiguousarray(candidates, dtype=np.int64)
     if idx.size == 0:
@@ -416,7 +423,7 @@ def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.
         raise ValueError("local_plane_terrain: terrain must be a writeable (N,) bool array")
     return int(_lp.local_plane_terrain(p, np.ascontiguousarray(heights, dtype=np.float64),
                                        terrain, idx, float(radius), float(threshold),
-                                       int(min_points), int(rounds)))
+                                       int(min_points), int(rounds), float(most_density)))
 
 
 def plane_radius(positions: np.ndarray, terrain: np.ndarray, *, most: float,

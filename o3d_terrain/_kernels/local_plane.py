@@ -95,6 +95,14 @@ def _wanted_cells(positions, candidates, x0, y0, cell, nx, ny):
     return wanted
 
 
+@numba.njit(cache=True, inline="always")
+def _cell_points(most_density, side):
+    """The most points a cell of ``side`` (m) lends to the local planes at ``most_density``
+    points per square metre: a denser cell lends every k-th of its points in index order, k
+    the smallest stride that leaves at most this many (at least 1)."""
+    return max(1, int(min(most_density * side * side, 4.0e18)))
+
+
 @numba.njit(cache=True)
 def _split(points_per_cell):
     """Sub-cells per side of a neighbour cell for a mean of ``points_per_cell`` points in the
@@ -295,7 +303,7 @@ def _on_plane(k, h, threshold, min_points, sums, sides):
 
 @numba.njit(cache=True)
 def local_plane_terrain(positions, heights, terrain, candidates, radius, threshold,
-                        min_points, max_rounds):
+                        min_points, max_rounds, most_density):
     """In place: ``terrain[i]`` (bool, (N,)) set for the ``candidates`` (int64 indices) that
     lie at most ``threshold`` above the local plane of the terrain points around them (module
     docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. Returns how many
@@ -330,13 +338,27 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         frac[inside, 1] = fy - gy
         count[c] += 1
         inside += 1
+    # a cell of more than most_density points per m2 lends every stride-th of them (in index
+    # order) to the planes (:func:`_strides`); the others are still labelled, as candidates
+    # or terrain
+    cell_points = _cell_points(most_density, cell)
+    stride = np.ones(nx * ny, np.int64)
+    for c in range(nx * ny):
+        if count[c] > cell_points:
+            stride[c] = (count[c] + cell_points - 1) // cell_points
+    lends = np.zeros(n, np.bool_)
+    seen = np.zeros(nx * ny, np.int64)
+    for t in range(inside):
+        c = cell_of[listed[t]]
+        lends[listed[t]] = seen[c] % stride[c] == 0
+        seen[c] += 1
     # the points in the candidates' own cells, on average: what a candidate reads
     read = 0.0
     placed = 0
     for k in range(candidates.size):
         c = cell_of[candidates[k]]
         if c >= 0:
-            read += count[c]
+            read += (count[c] + stride[c] - 1) // stride[c]
             placed += 1
     # the occupied cells, numbered (in place of their counts; -1 for the others)
     slot = count
@@ -384,7 +406,7 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         px[q] = positions[j, 0]
         py[q] = positions[j, 1]
         ph[q] = heights[j]
-        pt[q] = terrain[j]
+        pt[q] = terrain[j] and lends[j]
     # per sub-cell: the sums of its terrain points about its reference corner (count, u, v,
     # uu, uv, vv, h, uh, vh), the corner, and the terrain points' box (x min, x max, y min,
     # y max); only read when split > 1
@@ -470,6 +492,8 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
                 for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
                     if slot[gx * ny + gy] >= 0:
                         touched[slot[gx * ny + gy]] = True
+            if not lends[j]:
+                continue
             # the sub-cells too, for the candidates that read them again
             q = at[j]
             pt[q] = True
@@ -480,6 +504,8 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         fresh_fill[:] = fresh_first[:-1]
         for k in range(added):
             j = new[k]
+            if not lends[j]:
+                continue
             c = slot[cell_of[j]]
             fresh[fresh_fill[c], 0] = positions[j, 0]
             fresh[fresh_fill[c], 1] = positions[j, 1]
@@ -578,7 +604,7 @@ def column_spread(positions, heights, high, candidates, cell):
 
 
 @numba.njit(cache=True)
-def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane, cell_points):
+def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane, most_density):
     """For each candidate point i, how far the lowest ``terrain`` (N,) bool point j != i
     within ``radius`` (x/y) of it lies below the plane through it with the slope (gx_i, gy_i):
     min over j of (z_j - z_i) - (gx_i (x_j - x_i) + gy_i (y_j - y_i)) (negative: below), or
@@ -591,15 +617,17 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane,
     The neighbours are found in cells at least ``radius`` wide over the candidates' bounding
     box grown by ``radius`` (:func:`_candidate_grid`), the terrain points of the candidates'
     3 x 3 blocks only, gathered once in the order of their cells. A cell holding more than
-    ``cell_points`` terrain points gives every k-th of them in their order (k the smallest
-    stride that leaves at most ``cell_points``): a lidar's face seen from a few metres holds
-    thousands a cell, and its plane and lowest points show in a regular share of them."""
+    ``most_density`` terrain points per square metre gives every k-th of them in their order
+    (k the smallest stride that leaves at most that many: :func:`_cell_points`): a lidar's
+    face seen from a few metres holds thousands a cell, and its plane and lowest points show
+    in a regular share of them."""
     m = candidates.shape[0]
     out = np.full(m, np.inf)
     if m == 0:
         return out
     x0, _, y0, _, side, nx, ny = _candidate_grid(positions, candidates, radius, radius)
     wanted = _wanted_cells(positions, candidates, x0, y0, side, nx, ny)
+    cell_points = _cell_points(most_density, side)
     # the terrain points of the wanted cells, each with its cell, then sorted by cell
     # (a counting sort): cell c holds order[start[c]:start[c + 1]]
     n = positions.shape[0]
