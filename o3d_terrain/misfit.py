@@ -100,12 +100,12 @@ OVER_DEPTH = 0.5
 #: this many: the points of a face steeper than the surface lie along their own plane
 OVER_PLANE_POINTS = 6
 #: the local planes (:func:`local_plane_terrain`) and the test of points over the terrain
-#: (:func:`over_terrain`) read at most this many points per square metre of their neighbour
-#: cells: a denser cell (a lidar's face seen from a few metres holds thousands) lends every
-#: k-th of its points, a regular share in which its planes and its lowest points show
-#: (docs/algorithm.md, "Points over the terrain on a top-down scan": "A dense cell is read
-#: in a regular share")
-MOST_PLANE_DENSITY = 256.0
+#: (:func:`over_terrain`) read at most this many points of a neighbour cell (cells as wide as
+#: their radius): a denser cell (a lidar's face seen from a few metres holds thousands) lends
+#: every k-th of its points, a regular share in which its plane and its lowest points show
+#: (docs/algorithm.md, "Points over the terrain on a top-down scan": "A dense cell is read in
+#: a regular share")
+MOST_CELL_POINTS = 128
 #: histogram bin of the depths (m)
 _BIN = 0.002
 
@@ -371,7 +371,7 @@ def face_points(positions: np.ndarray, heights: np.ndarray, candidates: np.ndarr
 def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndarray,
                  gradient, *, radius: float = OVER_RADIUS, depth: float = OVER_DEPTH,
                  plane_points: int = OVER_PLANE_POINTS,
-                 most_density: float = MOST_PLANE_DENSITY) -> np.ndarray:
+                 cell_points: int = MOST_CELL_POINTS) -> np.ndarray:
     """The ``candidates`` (indices) that stand over terrain: some ``terrain`` (N,) bool point
     within ``radius`` (x/y) lies more than ``depth`` below the plane through the candidate
     with the surface's slope there (``gradient(x, y) -> (gx, gy)``) and, where the candidate
@@ -380,8 +380,8 @@ def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndar
     point with terrain that far beneath it, beyond what the slope explains, is vegetation or
     an object over the ground (docs/algorithm.md, "Points over the terrain on a top-down
     scan"), while a ridge the surface undercuts has its flanks along its slope, and a face
-    steeper than the surface along its own plane. The terrain points are read at most
-    ``most_density`` per square metre (:data:`MOST_PLANE_DENSITY`)."""
+    steeper than the surface along its own plane. A neighbour cell lends at most
+    ``cell_points`` of its terrain points (:data:`MOST_CELL_POINTS`)."""
     p = np.asarray(positions, dtype=np.float64)
     idx = np.ascontiguousarray(candidates, dtype=np.int64)
     if idx.size == 0:
@@ -392,7 +392,7 @@ def over_terrain(positions: np.ndarray, candidates: np.ndarray, terrain: np.ndar
     least = _lp.depth_below_slope(p, np.ascontiguousarray(terrain, dtype=np.bool_), idx,
                                   np.ascontiguousarray(gx, dtype=np.float64),
                                   np.ascontiguousarray(gy, dtype=np.float64), float(radius),
-                                  int(plane_points), float(most_density))
+                                  int(plane_points), int(cell_points))
     return idx[least < -depth]
 
 
@@ -400,7 +400,7 @@ def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.
                         candidates: np.ndarray, *, radius: float, threshold: float,
                         min_points: int = MISFIT_PLANE_MIN_POINTS,
                         rounds: int = MISFIT_PLANE_ROUNDS,
-                        most_density: float = MOST_PLANE_DENSITY) -> int:
+                        cell_points: int = MOST_CELL_POINTS) -> int:
     """In place: ``terrain`` (N,) bool set at the ``candidates`` (indices) whose height above
     the surface lies at most ``threshold`` above the least-squares plane (of the heights)
     through the terrain points within ``radius`` (m) of them, when at least ``min_points``
@@ -413,8 +413,8 @@ def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.
     the surface is known not to follow the terrain (a ridge it undercuts by metres), while the
     terrain points on the ridge's flanks, within the reach of detail the surface misses, do;
     a bush or a tree stands above the plane through the ground around it, a ridge point does
-    not. The planes read at most ``most_density`` points per square metre
-    (:data:`MOST_PLANE_DENSITY`); every candidate is still decided."""
+    not. A neighbour cell lends the planes at most ``cell_points`` of its points
+    (:data:`MOST_CELL_POINTS`); every candidate is still decided."""
     p = np.asarray(positions, dtype=np.float64)
     idx = np.ascontiguousarray(candidates, dtype=np.int64)
     if idx.size == 0:
@@ -423,7 +423,7 @@ def local_plane_terrain(positions: np.ndarray, heights: np.ndarray, terrain: np.
         raise ValueError("local_plane_terrain: terrain must be a writeable (N,) bool array")
     return int(_lp.local_plane_terrain(p, np.ascontiguousarray(heights, dtype=np.float64),
                                        terrain, idx, float(radius), float(threshold),
-                                       int(min_points), int(rounds), float(most_density)))
+                                       int(min_points), int(rounds), int(cell_points)))
 
 
 def plane_radius(positions: np.ndarray, terrain: np.ndarray, *, most: float,

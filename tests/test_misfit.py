@@ -263,7 +263,7 @@ def test_local_planes_equal_the_point_by_point_reference(rng):
         expected = _local_planes_reference(p, h, terrain, candidates, radius, 0.1)
         got = terrain.copy()
         taken = local_plane_terrain(p, h, got, candidates, radius=radius, threshold=0.1,
-                                    most_density=np.inf)
+                                    cell_points=2**62)
         np.testing.assert_array_equal(got, expected)
         assert taken == int(expected[patch].sum()) > 0.8 * (patch & ~bush).sum()
         assert not got[bush].any()
@@ -293,7 +293,7 @@ def test_local_planes_later_rounds_equal_the_reference_round_for_round(rng):
             expected = _local_planes_reference(p, h, before, candidates, radius, 0.05, rounds=1)
             got = terrain.copy()
             taken = local_plane_terrain(p, h, got, candidates, radius=radius, threshold=0.05,
-                                        rounds=rounds, most_density=np.inf)
+                                        rounds=rounds, cell_points=2**62)
             np.testing.assert_array_equal(got, expected)
             assert taken == int((got & ~terrain).sum())
             if (expected == before).all():
@@ -315,10 +315,10 @@ def _strided_share(p, cells_of, listed, most):
 
 def test_local_planes_read_a_regular_share_of_a_dense_cell(rng):
     """A neighbour cell (``radius`` wide, from the candidates' box grown by ``radius``)
-    holding more than ``most_density`` x radius^2 points lends every k-th of them in index
-    order to the planes: the labels equal the point-by-point reference's on that share, every
+    holding more than ``cell_points`` points lends every k-th of them in index order to the
+    planes: the labels equal the point-by-point reference's on that share, every
     candidate still decided; and the share changes which points the planes read."""
-    n, radius, density = 20000, 0.5, 40.0
+    n, radius, cap = 20000, 0.5, 10
     x, y = rng.uniform(0, 12, n), rng.uniform(0, 12, n)
     h = 1.0 + np.tan(np.radians(20)) * x + 0.3 * np.sin(y) + rng.normal(0, 0.03, n)
     patch = (np.abs(x - 6) < 3) & (np.abs(y - 6) < 3)
@@ -331,12 +331,12 @@ def test_local_planes_read_a_regular_share_of_a_dense_cell(rng):
     x1, y1 = x[candidates].max() + radius, y[candidates].max() + radius
     inside = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
     cells = np.floor((x - x0) / radius) * 10**6 + np.floor((y - y0) / radius)
-    lends = _strided_share(p, cells, inside, int(density * radius * radius))
+    lends = _strided_share(p, cells, inside, cap)
     assert lends[inside].mean() < 0.5
     expected = _local_planes_reference(p, h, terrain, candidates, radius, 0.05, lends=lends)
     got = terrain.copy()
     taken = local_plane_terrain(p, h, got, candidates, radius=radius, threshold=0.05,
-                                most_density=density)
+                                cell_points=cap)
     np.testing.assert_array_equal(got, expected)
     assert taken == int((got & ~terrain).sum()) > 0
     assert not got[bush].any()
@@ -520,14 +520,13 @@ def test_depth_below_slope_reads_a_regular_share_of_a_dense_cell(rng):
     ``radius``) holding more than ``cell_points`` terrain points gives every k-th of them in
     index order, k the smallest stride leaving at most ``cell_points``; other cells all."""
     from o3d_terrain._kernels.local_plane import depth_below_slope
-    n, radius, density = 4000, 0.9, 25.0
-    cap = int(density * radius * radius)
+    n, radius, cap = 4000, 0.9, 20
     p = np.column_stack([rng.uniform(0, 6, n), rng.uniform(0, 6, n), rng.normal(0, 0.5, n)])
     p[:1000, :2] = rng.uniform(2.0, 2.8, (1000, 2))  # one dense patch: strided cells
     terrain = rng.uniform(size=n) < 0.7
     idx = rng.choice(n, 200, replace=False)
     gx, gy = rng.normal(0, 0.5, 200), rng.normal(0, 0.5, 200)
-    got = depth_below_slope(p, terrain, idx, gx, gy, radius, 10**9, density)
+    got = depth_below_slope(p, terrain, idx, gx, gy, radius, 10**9, cap)
     x0, y0 = p[idx, 0].min() - radius, p[idx, 1].min() - radius
     cell = np.floor((p[:, 0] - x0) / radius) * 10**6 + np.floor((p[:, 1] - y0) / radius)
     kept = np.zeros(n, bool)

@@ -95,14 +95,6 @@ def _wanted_cells(positions, candidates, x0, y0, cell, nx, ny):
     return wanted
 
 
-@numba.njit(cache=True, inline="always")
-def _cell_points(most_density, side):
-    """The most points a cell of ``side`` (m) lends to the local planes at ``most_density``
-    points per square metre: a denser cell lends every k-th of its points in index order, k
-    the smallest stride that leaves at most this many (at least 1)."""
-    return max(1, int(min(most_density * side * side, 4.0e18)))
-
-
 @numba.njit(cache=True)
 def _split(points_per_cell):
     """Sub-cells per side of a neighbour cell for a mean of ``points_per_cell`` points in the
@@ -303,7 +295,7 @@ def _on_plane(k, h, threshold, min_points, sums, sides):
 
 @numba.njit(cache=True)
 def local_plane_terrain(positions, heights, terrain, candidates, radius, threshold,
-                        min_points, max_rounds, most_density):
+                        min_points, max_rounds, cell_points):
     """In place: ``terrain[i]`` (bool, (N,)) set for the ``candidates`` (int64 indices) that
     lie at most ``threshold`` above the local plane of the terrain points around them (module
     docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. Returns how many
@@ -338,10 +330,8 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         frac[inside, 1] = fy - gy
         count[c] += 1
         inside += 1
-    # a cell of more than most_density points per m2 lends every stride-th of them (in index
-    # order) to the planes (:func:`_strides`); the others are still labelled, as candidates
-    # or terrain
-    cell_points = _cell_points(most_density, cell)
+    # a cell of more than cell_points points lends every stride-th of them (in index order)
+    # to the planes; the others are still labelled, as candidates or terrain
     stride = np.ones(nx * ny, np.int64)
     for c in range(nx * ny):
         if count[c] > cell_points:
@@ -604,7 +594,7 @@ def column_spread(positions, heights, high, candidates, cell):
 
 
 @numba.njit(cache=True)
-def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane, most_density):
+def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane, cell_points):
     """For each candidate point i, how far the lowest ``terrain`` (N,) bool point j != i
     within ``radius`` (x/y) of it lies below the plane through it with the slope (gx_i, gy_i):
     min over j of (z_j - z_i) - (gx_i (x_j - x_i) + gy_i (y_j - y_i)) (negative: below), or
@@ -617,17 +607,15 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane,
     The neighbours are found in cells at least ``radius`` wide over the candidates' bounding
     box grown by ``radius`` (:func:`_candidate_grid`), the terrain points of the candidates'
     3 x 3 blocks only, gathered once in the order of their cells. A cell holding more than
-    ``most_density`` terrain points per square metre gives every k-th of them in their order
-    (k the smallest stride that leaves at most that many: :func:`_cell_points`): a lidar's
-    face seen from a few metres holds thousands a cell, and its plane and lowest points show
-    in a regular share of them."""
+    ``cell_points`` terrain points gives every k-th of them in their order (k the smallest
+    stride that leaves at most ``cell_points``): a lidar's face seen from a few metres holds
+    thousands a cell, and its plane and lowest points show in a regular share of them."""
     m = candidates.shape[0]
     out = np.full(m, np.inf)
     if m == 0:
         return out
     x0, _, y0, _, side, nx, ny = _candidate_grid(positions, candidates, radius, radius)
     wanted = _wanted_cells(positions, candidates, x0, y0, side, nx, ny)
-    cell_points = _cell_points(most_density, side)
     # the terrain points of the wanted cells, each with its cell, then sorted by cell
     # (a counting sort): cell c holds order[start[c]:start[c + 1]]
     n = positions.shape[0]
