@@ -298,7 +298,9 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
                         min_points, max_rounds, cell_points):
     """In place: ``terrain[i]`` (bool, (N,)) set for the ``candidates`` (int64 indices) that
     lie at most ``threshold`` above the local plane of the terrain points around them (module
-    docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. Returns how many
+    docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. A neighbour cell
+    of more than ``cell_points`` points (terrain or not, in index order) lends the planes every
+    k-th of them, k the smallest stride that leaves at most ``cell_points``. Returns how many
     candidates became terrain."""
     if candidates.size == 0 or not radius > 0.0:
         return 0
