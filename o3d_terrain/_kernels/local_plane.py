@@ -96,6 +96,29 @@ def _wanted_cells(positions, candidates, x0, y0, cell, nx, ny):
 
 
 @numba.njit(cache=True)
+def _regular_share(cell_of, count, most):
+    """(N,) bool: the points that their cells lend (``cell_of[j]`` >= 0 the cell of point j,
+    ``count[c]`` the number of such points in cell c): every point of a cell of at most
+    ``most``, every k-th in index order of a denser one, k the smallest stride that leaves
+    at most ``most`` (a lidar's face seen from a few metres holds thousands a cell; its
+    plane and its lowest points show in a regular share of them). ``count`` becomes the
+    number each cell lends."""
+    stride = np.ones(count.size, np.int64)
+    for c in range(count.size):
+        if count[c] > most:
+            stride[c] = (count[c] + most - 1) // most
+            count[c] = (count[c] + stride[c] - 1) // stride[c]
+    lends = np.zeros(cell_of.size, np.bool_)
+    seen = np.zeros(count.size, np.int64)
+    for j in range(cell_of.size):
+        c = cell_of[j]
+        if c >= 0:
+            lends[j] = seen[c] % stride[c] == 0
+            seen[c] += 1
+    return lends
+
+
+@numba.njit(cache=True)
 def _split(points_per_cell):
     """Sub-cells per side of a neighbour cell for a mean of ``points_per_cell`` points in the
     occupied cells: a candidate then reads about 9 split^2 sub-cells' sums and the points of
@@ -299,9 +322,8 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
     """In place: ``terrain[i]`` (bool, (N,)) set for the ``candidates`` (int64 indices) that
     lie at most ``threshold`` above the local plane of the terrain points around them (module
     docstring). ``positions`` (N, >= 2), ``heights`` (N,) above the surface. A neighbour cell
-    of more than ``cell_points`` points (terrain or not, in index order) lends the planes every
-    k-th of them, k the smallest stride that leaves at most ``cell_points``. Returns how many
-    candidates became terrain."""
+    of more than ``cell_points`` points (terrain or not) lends the planes a regular share of
+    them (:func:`_regular_share`). Returns how many candidates became terrain."""
     if candidates.size == 0 or not radius > 0.0:
         return 0
     x0, x1, y0, y1, cell, nx, ny = _candidate_grid(positions, candidates, radius, radius)
@@ -332,25 +354,16 @@ def local_plane_terrain(positions, heights, terrain, candidates, radius, thresho
         frac[inside, 1] = fy - gy
         count[c] += 1
         inside += 1
-    # a cell of more than cell_points points lends every stride-th of them (in index order)
-    # to the planes; the others are still labelled, as candidates or terrain
-    stride = np.ones(nx * ny, np.int64)
-    for c in range(nx * ny):
-        if count[c] > cell_points:
-            stride[c] = (count[c] + cell_points - 1) // cell_points
-    lends = np.zeros(n, np.bool_)
-    seen = np.zeros(nx * ny, np.int64)
-    for t in range(inside):
-        c = cell_of[listed[t]]
-        lends[listed[t]] = seen[c] % stride[c] == 0
-        seen[c] += 1
+    # the points a dense cell lends the planes (the others are still labelled, as candidates
+    # or terrain); count becomes the number each cell lends
+    lends = _regular_share(cell_of, count, cell_points)
     # the points in the candidates' own cells, on average: what a candidate reads
     read = 0.0
     placed = 0
     for k in range(candidates.size):
         c = cell_of[candidates[k]]
         if c >= 0:
-            read += (count[c] + stride[c] - 1) // stride[c]
+            read += count[c]
             placed += 1
     # the occupied cells, numbered (in place of their counts; -1 for the others)
     slot = count
@@ -609,17 +622,15 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane,
     The neighbours are found in cells at least ``radius`` wide over the candidates' bounding
     box grown by ``radius`` (:func:`_candidate_grid`), the terrain points of the candidates'
     3 x 3 blocks only, gathered once in the order of their cells. A cell holding more than
-    ``cell_points`` terrain points gives every k-th of them in their order (k the smallest
-    stride that leaves at most ``cell_points``): a lidar's face seen from a few metres holds
-    thousands a cell, and its plane and lowest points show in a regular share of them."""
+    ``cell_points`` terrain points gives a regular share of them (:func:`_regular_share`)."""
     m = candidates.shape[0]
     out = np.full(m, np.inf)
     if m == 0:
         return out
     x0, _, y0, _, side, nx, ny = _candidate_grid(positions, candidates, radius, radius)
     wanted = _wanted_cells(positions, candidates, x0, y0, side, nx, ny)
-    # the terrain points of the wanted cells, each with its cell, then sorted by cell
-    # (a counting sort): cell c holds order[start[c]:start[c + 1]]
+    # the terrain points of the wanted cells, each with its cell, then those their cells lend
+    # sorted by cell (a counting sort): cell c holds order[start[c]:start[c + 1]]
     n = positions.shape[0]
     cell_of = np.full(n, -1, np.int64)
     start = np.zeros(nx * ny + 1, np.int64)
@@ -633,25 +644,16 @@ def depth_below_slope(positions, terrain, candidates, gx, gy, radius, min_plane,
             if wanted[c]:
                 cell_of[j] = c
                 start[c + 1] += 1
-    # every stride-th point of a cell over cell_points (stride 1 elsewhere)
-    stride = np.ones(nx * ny, np.int64)
-    for c in range(nx * ny):
-        held = start[c + 1]
-        if held > cell_points:
-            stride[c] = (held + cell_points - 1) // cell_points
-            start[c + 1] = (held + stride[c] - 1) // stride[c]
+    lends = _regular_share(cell_of, start[1:], cell_points)  # start[c + 1]: cell c's count
     for c in range(nx * ny):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
-    seen = np.zeros(nx * ny, np.int64)
     order = np.empty(start[-1], np.int64)
     for j in range(n):
         c = cell_of[j]
-        if c >= 0:
-            if seen[c] % stride[c] == 0:
-                order[fill[c]] = j
-                fill[c] += 1
-            seen[c] += 1
+        if c >= 0 and lends[j]:
+            order[fill[c]] = j
+            fill[c] += 1
     r2 = radius * radius
     cov = np.empty((3, 3))
     normal = np.empty(3)
